@@ -1,0 +1,19 @@
+"""Errors the command line turns into exit status 2 with a one-line message."""
+
+
+class InputError(Exception):
+    """Bad input or usage: the message is one line naming what is wrong and where."""
+
+
+class LogError(InputError):
+    """A detection log that breaks the contract (../shared/CONTRACT.md)."""
+
+    def __init__(self, path: str, reason: str, topic: str | None = None, index: int | None = None):
+        where = f"{topic} message {index}: " if topic is not None and index is not None else ""
+        if topic is not None and index is None:
+            where = f"{topic}: "
+        super().__init__(f"bad log {path}: {where}{reason}")
+        self.path = path
+        self.topic = topic
+        self.index = index
+        self.reason = reason

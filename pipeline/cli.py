@@ -84,7 +84,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("log", type=Path, metavar="LOG.mcap")
     replay.add_argument("--method", required=True, choices=METHODS)
     replay.add_argument("--out", required=True, type=Path, metavar="DIR")
-    replay.add_argument("--config", type=Path, metavar="FILE", help="TOML over configs/default.toml")
+    replay.add_argument(
+        "--config", type=Path, metavar="FILE", help="TOML over configs/default.toml"
+    )
     replay.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_viz_options(replay)
     replay.set_defaults(run=_cmd_replay)

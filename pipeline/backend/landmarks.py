@@ -1,0 +1,124 @@
+"""Landmarks: their class posterior, their kind, and a spatial index of their estimates.
+
+The index is a uniform grid (a dict from cell to ids), updated incrementally as estimates move,
+so that finding candidates near a detection costs the cells it covers, not the size of the map.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+
+class LandmarkKind(Enum):
+    POINT = "point"  # position, measured by bearing/elevation/range
+    POSE = "pose"  # 6-DoF (tags with relative_pose)
+
+
+@dataclass
+class Landmark:
+    id: int
+    kind: LandmarkKind
+    class_probabilities: np.ndarray
+    observations: int = 0
+
+    @property
+    def map_class(self) -> int:
+        return int(np.argmax(self.class_probabilities))
+
+
+class SpatialHash:
+    """Ids at 3-D positions, bucketed into cubic cells of side `cell_size`."""
+
+    def __init__(self, cell_size: float):
+        if cell_size <= 0:
+            raise ValueError("cell_size must be positive")
+        self.cell_size = cell_size
+        self._cells: dict[tuple[int, int, int], set[int]] = defaultdict(set)
+        self._where: dict[int, tuple[int, int, int]] = {}
+        self.positions: dict[int, np.ndarray] = {}
+
+    def _cell(self, position: np.ndarray) -> tuple[int, int, int]:
+        return tuple(math.floor(c / self.cell_size) for c in position)  # type: ignore[return-value]
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def set(self, item: int, position: np.ndarray) -> None:
+        position = np.asarray(position, dtype=float)
+        cell = self._cell(position)
+        old = self._where.get(item)
+        if old != cell:
+            if old is not None:
+                self._cells[old].discard(item)
+                if not self._cells[old]:
+                    del self._cells[old]
+            self._cells[cell].add(item)
+            self._where[item] = cell
+        self.positions[item] = position
+
+    def query(self, center: np.ndarray, radius: float) -> list[int]:
+        """Ids within `radius` of `center`, in increasing order (deterministic)."""
+        center = np.asarray(center, dtype=float)
+        lo = self._cell(center - radius)
+        hi = self._cell(center + radius)
+        span = [high - low + 1 for low, high in zip(lo, hi, strict=True)]
+        found: list[int] = []
+        if span[0] * span[1] * span[2] > len(self._cells):
+            # A radius wider than the occupied map: walking the occupied cells is cheaper.
+            cells = [
+                c
+                for c in self._cells
+                if all(low <= x <= high for low, x, high in zip(lo, c, hi, strict=True))
+            ]
+        else:
+            cells = [
+                (i, j, k)
+                for i in range(lo[0], hi[0] + 1)
+                for j in range(lo[1], hi[1] + 1)
+                for k in range(lo[2], hi[2] + 1)
+                if (i, j, k) in self._cells
+            ]
+        r2 = radius * radius
+        for cell in cells:
+            for item in self._cells[cell]:
+                d = self.positions[item] - center
+                if float(d @ d) <= r2:
+                    found.append(item)
+        return sorted(found)
+
+
+@dataclass
+class LandmarkMap:
+    num_classes: int
+    cell_size: float
+    landmarks: dict[int, Landmark] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._index = {kind: SpatialHash(self.cell_size) for kind in LandmarkKind}
+
+    def __len__(self) -> int:
+        return len(self.landmarks)
+
+    def create(self, kind: LandmarkKind, position: np.ndarray) -> Landmark:
+        landmark = Landmark(
+            id=len(self.landmarks),
+            kind=kind,
+            class_probabilities=np.full(self.num_classes, 1.0 / self.num_classes),
+        )
+        self.landmarks[landmark.id] = landmark
+        self._index[kind].set(landmark.id, position)
+        return landmark
+
+    def move(self, landmark_id: int, position: np.ndarray) -> None:
+        self._index[self.landmarks[landmark_id].kind].set(landmark_id, position)
+
+    def position(self, landmark_id: int) -> np.ndarray:
+        return self._index[self.landmarks[landmark_id].kind].positions[landmark_id]
+
+    def near(self, kind: LandmarkKind, center: np.ndarray, radius: float) -> list[int]:
+        return self._index[kind].query(center, radius)

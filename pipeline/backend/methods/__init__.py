@@ -1,0 +1,25 @@
+"""The five ways to use association weights: known, ml, gpda, mm, mm-nh (METHOD.md)."""
+
+from __future__ import annotations
+
+from pipeline.backend.methods.base import AssociationMethod, BackendContext
+from pipeline.backend.methods.gpda import GaussianPDA
+from pipeline.backend.methods.known import KnownAssociation
+from pipeline.backend.methods.maxmixture import MaxMixture
+from pipeline.backend.methods.ml import MaximumLikelihood
+
+METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
+
+
+def make_method(name: str, context: BackendContext) -> AssociationMethod:
+    if name == "known":
+        return KnownAssociation(context)
+    if name == "ml":
+        return MaximumLikelihood(context)
+    if name == "gpda":
+        return GaussianPDA(context)
+    if name == "mm":
+        return MaxMixture(context, null_hypothesis=False)
+    if name == "mm-nh":
+        return MaxMixture(context, null_hypothesis=True)
+    raise ValueError(f"unknown association method {name!r}; choose from {', '.join(METHODS)}")

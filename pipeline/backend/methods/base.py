@@ -1,0 +1,146 @@
+"""What every association method shares: the graph it edits and the class bookkeeping."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from pipeline.backend.association import class_posterior_update
+from pipeline.backend.candidates import Candidates, PosePrediction
+from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
+from pipeline.backend.landmarks import LandmarkMap
+from pipeline.backend.measurements import Measurement
+from pipeline.backend.solver import Isam2Solver
+from pipeline.config import Config
+
+
+@dataclass
+class BackendContext:
+    """The state the methods read and edit: solver, landmarks, the keyframe being added."""
+
+    solver: Isam2Solver
+    landmarks: LandmarkMap
+    confusion: np.ndarray
+    config: Config
+    prediction: PosePrediction | None = None
+    _last_moved: dict[int, np.ndarray] = field(default_factory=dict)
+
+    def create_landmark(self, m: Measurement) -> int:
+        """A new landmark initialised from the detection, with its factor and class evidence."""
+        value = m.initial_landmark(self.prediction.pose)
+        position = value.translation() if hasattr(value, "translation") else value
+        landmark = self.landmarks.create(m.kind, position)
+        self.solver.insert(L(landmark.id), value)
+        self.observe_classes(m, [landmark.id], np.ones(1))
+        return landmark.id
+
+    def add_factor(self, m: Measurement, landmark_id: int, information_scale: float = 1.0) -> int:
+        return self.solver.add(m.factor(X(m.pose_index), L(landmark_id), information_scale))
+
+    def observe_classes(
+        self, m: Measurement, landmark_ids: list[int], weights: np.ndarray, null_weight: float = 0.0
+    ) -> None:
+        """Update the class posterior of every hypothesised landmark by this detection's report,
+        with its association summed out (the paper's product over detections of sums)."""
+        column = self.confusion[:, m.detection.class_id]
+        lms = [self.landmarks.landmarks[j] for j in landmark_ids]
+        semantic = np.array([column @ lm.class_probabilities for lm in lms])
+        # A null hypothesis says nothing about which landmark: the report under a uniform class.
+        total = float(np.dot(weights, semantic)) + null_weight * float(column.mean())
+        for lm, w, s in zip(lms, weights, semantic, strict=True):
+            lm.class_probabilities = class_posterior_update(
+                lm.class_probabilities, column, float(w), total - float(w) * s
+            )
+
+    def estimates(self, prediction: PosePrediction | None = None) -> EstimateCache:
+        """Current estimates; with `prediction`, its pose (not in iSAM2 yet) included."""
+        cache = EstimateCache(
+            self.solver, {j: lm.kind for j, lm in self.landmarks.landmarks.items()}
+        )
+        if prediction is not None:
+            cache.set_pose(prediction.pose_index, prediction.pose)
+        return cache
+
+    def after_update(self, marked: set[int]) -> set[int]:
+        """The variables among iSAM2's `marked` ones whose estimate moved by more than the
+        relinearisation threshold since they last moved (new variables included). Moved
+        landmarks are moved in the spatial index too.
+
+        A variable that iSAM2 did not mark kept its linearisation point, so the factors on it,
+        and the component a max-mixture would choose, are as they were."""
+        threshold = self.config.isam2.relinearize_threshold
+        estimates = self.estimates()
+        moved = set()
+        for key in marked:
+            symbol = gtsam.Symbol(key)
+            index = symbol.index()
+            if chr(symbol.chr()) == "x":
+                value = estimates.pose(index)
+            else:
+                value = estimates.landmark(index)
+            flat = (
+                np.concatenate([value[0].ravel(), value[1]]) if isinstance(value, tuple) else value
+            )
+            last = self._last_moved.get(key)
+            if last is not None and np.max(np.abs(flat - last)) <= threshold:
+                continue
+            self._last_moved[key] = flat
+            moved.add(key)
+            if chr(symbol.chr()) == "l":
+                self.landmarks.move(index, value[1] if isinstance(value, tuple) else value)
+        return moved
+
+
+class AssociationMethod(ABC):
+    """Turns a detection and its scored candidates into factors, and keeps them right."""
+
+    name: str = ""
+    uses_candidates: bool = True
+
+    def __init__(self, context: BackendContext):
+        self.context = context
+        self.config = context.config
+
+    @abstractmethod
+    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+        """Add the detection's factors (pending in the solver) and return its record."""
+
+    def refine(self, moved: set[int]) -> int:
+        """After an iSAM2 update that moved `moved`: revisit associations; returns how many
+        changed."""
+        return 0
+
+    def single(self, m: Measurement, landmark_id: int, weight: float = 1.0) -> AssociationRecord:
+        """A plain association: one factor to one landmark."""
+        handle = self.context.add_factor(m, landmark_id)
+        return AssociationRecord(m, [landmark_id], np.array([weight]), handles=[handle])
+
+    def new_landmark(self, m: Measurement) -> AssociationRecord:
+        landmark_id = self.context.create_landmark(m)
+        return self.single(m, landmark_id)
+
+
+class MixtureMethod(AssociationMethod):
+    """Methods whose records keep several components and are revisited after updates."""
+
+    def __init__(self, context: BackendContext):
+        super().__init__(context)
+        self._records: list[AssociationRecord] = []
+        self._by_key: dict[int, list[int]] = defaultdict(list)
+
+    def track(self, record: AssociationRecord) -> AssociationRecord:
+        index = len(self._records)
+        self._records.append(record)
+        for key in record.keys:
+            self._by_key[key].append(index)
+        return record
+
+    def affected(self, moved: set[int]) -> list[AssociationRecord]:
+        """Tracked records with a variable among `moved`, in creation order."""
+        indices = sorted({i for key in moved for i in self._by_key.get(key, ())})
+        return [self._records[i] for i in indices]

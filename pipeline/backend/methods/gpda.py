@@ -1,0 +1,67 @@
+"""Gaussian probabilistic data association (Bowman et al. 2017), by expectation-maximisation.
+
+Every gated candidate gets a factor whose information is scaled by its association weight.
+After each update the weights of the records iSAM2 marked are recomputed from the current
+point estimate (E-step: semantic likelihood times N(h(x, l_k) - z; 0, Gamma)), their factors
+are replaced where a weight moved by more than the tolerance, and iSAM2 updates again (M-step),
+until the weights settle or the iteration limit is reached.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.backend.candidates import Candidates
+from pipeline.backend.hypotheses import AssociationRecord, component_log_likelihoods
+from pipeline.backend.measurements import Measurement
+from pipeline.backend.methods.base import MixtureMethod
+
+
+class GaussianPDA(MixtureMethod):
+    name = "gpda"
+
+    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+        if len(candidates) == 0:
+            return self.new_landmark(m)
+        ids = [int(j) for j in candidates.landmark_ids]
+        self.context.observe_classes(m, ids, candidates.weights)
+        # The record's fixed `weights` hold the semantic likelihoods: the E-step's prior.
+        record = AssociationRecord(m, ids, candidates.semantic.copy())
+        self._put_factors(record, candidates.weights)
+        return self.track(record) if len(ids) > 1 else record
+
+    def _put_factors(self, record: AssociationRecord, weights: np.ndarray) -> None:
+        for handle in record.handles:
+            self.context.solver.remove(handle)
+        record.handles = [
+            self.context.add_factor(record.measurement, j, float(w))
+            for j, w in zip(record.landmark_ids, weights, strict=True)
+            if w >= self.config.association.min_weight
+        ]
+        record.graph_weights = np.asarray(weights, dtype=float)
+
+    def refine(self, moved: set[int]) -> int:
+        solver = self.context.solver
+        tolerance = self.config.gpda.weight_tolerance
+        changed = 0
+        for _ in range(self.config.gpda.max_iterations):
+            records = self.affected(moved)
+            if not records:
+                break
+            reweighted = 0
+            logliks = component_log_likelihoods(records, self.context.estimates())
+            for record, loglik in zip(records, logliks, strict=True):
+                log_post = np.log(record.weights) + loglik
+                weights = np.exp(log_post - log_post.max())
+                weights /= weights.sum()
+                if np.max(np.abs(weights - record.graph_weights)) <= tolerance:
+                    continue
+                if np.argmax(weights) != np.argmax(record.graph_weights):
+                    record.switches += 1
+                self._put_factors(record, weights)
+                reweighted += 1
+            if not reweighted:
+                break
+            changed += reweighted
+            moved = self.context.after_update(solver.update())
+        return changed

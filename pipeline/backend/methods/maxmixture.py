@@ -1,0 +1,96 @@
+"""Semantic max-mixture factors (`mm`), with the null hypothesis (`mm-nh`).
+
+A detection's factor is max_k w_k N(h(x, l_k) - z; 0, Gamma): the component with the smallest
+negative log-likelihood, normalisers included, is the one in the graph. With the null
+hypothesis, a component of weight `null_weight` and standard deviation `null_sigma` competes:
+when it wins, the detection pulls on nothing, and a wrong loop closure is rejected.
+See `pipeline/backend/hypotheses.py` for how the component is kept current.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.backend.association import with_null_hypothesis
+from pipeline.backend.candidates import Candidates
+from pipeline.backend.hypotheses import NULL, AssociationRecord, component_log_likelihoods
+from pipeline.backend.measurements import Measurement
+from pipeline.backend.methods.base import BackendContext, MixtureMethod
+from pipeline.backend.mixture import null_component_nll
+
+
+class MaxMixture(MixtureMethod):
+    name = "mm"
+
+    def __init__(self, context: BackendContext, null_hypothesis: bool = False):
+        super().__init__(context)
+        a = self.config.association
+        self.null_weight = a.null_weight if null_hypothesis else 0.0
+        self.null_sigma = a.null_sigma
+        self.name = "mm-nh" if null_hypothesis else "mm"
+
+    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+        if len(candidates) == 0:
+            return self.new_landmark(m)
+        weights = candidates.weights
+        if self.null_weight > 0:
+            weights, _ = with_null_hypothesis(weights, self.null_weight)
+        ids = [int(j) for j in candidates.landmark_ids]
+        self.context.observe_classes(m, ids, weights, self.null_weight)
+        record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=NULL)
+        if not record.is_mixture:
+            record.active = 0
+            record.handles = [self.context.add_factor(m, ids[0])]
+            return record
+        # The first choice uses the predicted pose; `refine` revisits it after the update.
+        record.active = self._best([record], self.context.estimates(self.context.prediction))[0]
+        if record.active != NULL:
+            record.handles = [self.context.add_factor(m, ids[record.active])]
+        return self.track(record)
+
+    def _best(self, records: list[AssociationRecord], estimates) -> list[int]:
+        """Index of each record's winning component (NULL for the null hypothesis)."""
+        best = []
+        for record, loglik in zip(
+            records, component_log_likelihoods(records, estimates), strict=True
+        ):
+            nll = -np.log(record.weights) - loglik
+            winner = int(np.argmin(nll))
+            if record.null_weight > 0:
+                null_nll = null_component_nll(
+                    record.null_weight, self.null_sigma, record.measurement.dim
+                )
+                if null_nll < nll[winner]:
+                    winner = NULL
+            best.append(winner)
+        return best
+
+    def refine(self, moved: set[int]) -> int:
+        """Swap in the winning component wherever it changed, until none changes."""
+        solver = self.context.solver
+        changed = 0
+        for _ in range(self.config.mixture.max_switch_rounds):
+            records = self.affected(moved)
+            if not records:
+                break
+            switched = 0
+            for record, winner in zip(
+                records, self._best(records, self.context.estimates()), strict=True
+            ):
+                if winner == record.active:
+                    continue
+                for handle in record.handles:
+                    solver.remove(handle)
+                record.handles = []
+                if winner != NULL:
+                    record.handles = [
+                        self.context.add_factor(record.measurement, record.landmark_ids[winner])
+                    ]
+                record.active = winner
+                record.switches += 1
+                switched += 1
+            if not switched:
+                break
+            changed += switched
+            moved = self.context.after_update(solver.update())
+        return changed

@@ -1,0 +1,142 @@
+"""The back-end: keyframes in, iSAM2 estimate and associations out.
+
+backend = Backend(config, confusion, "mm-nh")
+for odometry, detections in keyframes:
+    backend.add_keyframe(odometry, detections)
+result = backend.result()
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, X
+
+from pipeline.backend.candidates import Candidates, CandidateScorer, PosePrediction
+from pipeline.backend.factors import odometry_factor, pose_from_message
+from pipeline.backend.hypotheses import AssociationRecord
+from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
+from pipeline.backend.measurements import make_measurement
+from pipeline.backend.methods import BackendContext, make_method
+from pipeline.backend.solver import Isam2Solver
+from pipeline.config import Config
+from pipeline.log.messages import Detection, Odometry
+
+# Cells of the landmark index: about the spread of a search, so a query touches few cells.
+INDEX_CELL_SIZE_M = 10.0
+
+
+@dataclass
+class KeyframeReport:
+    """What happened at one keyframe: for viewers, progress and benchmarks."""
+
+    pose_index: int
+    records: list[AssociationRecord]
+    candidates: list[Candidates]
+    changed: int  # associations revisited after the update (switches, re-weightings)
+    seconds: float
+
+
+@dataclass
+class BackendResult:
+    poses: list[gtsam.Pose3]
+    landmark_ids: list[int]
+    landmark_values: list  # np.ndarray positions or gtsam.Pose3
+    records: list[AssociationRecord]
+    landmarks: LandmarkMap
+    switches: int = 0
+    step_seconds: list[float] = field(default_factory=list)
+
+
+class Backend:
+    def __init__(self, config: Config, confusion: np.ndarray, method: str):
+        self.config = config
+        self.solver = Isam2Solver(config.isam2)
+        self.landmarks = LandmarkMap(num_classes=confusion.shape[0], cell_size=INDEX_CELL_SIZE_M)
+        self.context = BackendContext(self.solver, self.landmarks, confusion, config)
+        self.method = make_method(method, self.context)
+        self.scorer = CandidateScorer(self.solver, self.landmarks, confusion, config.association)
+        self.records: list[AssociationRecord] = []
+        self.num_poses = 0
+        self.switches = 0
+        self.step_seconds: list[float] = []
+
+    def _add_origin(self) -> gtsam.Pose3:
+        p = self.config.prior
+        sigmas = np.array([p.pose0_sigma_rotation] * 3 + [p.pose0_sigma_translation] * 3)
+        origin = gtsam.Pose3()
+        self.solver.add(
+            gtsam.PriorFactorPose3(X(0), origin, gtsam.noiseModel.Diagonal.Sigmas(sigmas))
+        )
+        self.solver.insert(X(0), origin)
+        self.solver.update()
+        return origin
+
+    def predict(self, odometry: Odometry | None) -> PosePrediction:
+        """The new pose from the last one and the odometry; pose 0 is the origin."""
+        index = self.num_poses
+        if odometry is None:
+            return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
+        step = pose_from_message(odometry.translation, odometry.rotation)
+        pose = self.solver.pose(X(index - 1)).compose(step)
+        self.solver.add(odometry_factor(X(index - 1), X(index), odometry))
+        self.solver.insert(X(index), pose)
+        return PosePrediction(
+            index,
+            X(index - 1),
+            pose,
+            step.inverse().AdjointMap(),
+            np.reshape(odometry.covariance, (6, 6)),
+        )
+
+    def add_keyframe(
+        self, odometry: Odometry | None, detections: list[Detection]
+    ) -> KeyframeReport:
+        """Predict, score candidates, choose factors, update iSAM2, revisit associations."""
+        start = time.perf_counter()
+        if (odometry is None) != (self.num_poses == 0):
+            raise ValueError("odometry is needed for every keyframe but the first")
+        prediction = self.predict(odometry)
+        self.context.prediction = prediction
+        measurements = [
+            make_measurement(prediction.pose_index, k, d, self.config.landmarks.use_relative_pose)
+            for k, d in enumerate(detections)
+        ]
+        if self.method.uses_candidates:
+            candidates = self.scorer.score(prediction, measurements)
+        else:
+            candidates = [Candidates.none() for _ in measurements]
+        records = [
+            self.method.associate(m, c) for m, c in zip(measurements, candidates, strict=True)
+        ]
+        self.records.extend(records)
+        self.num_poses += 1
+        moved = self.context.after_update(self.solver.update())
+        changed = self.method.refine(moved)
+        self.switches += changed
+        seconds = time.perf_counter() - start
+        self.step_seconds.append(seconds)
+        return KeyframeReport(prediction.pose_index, records, candidates, changed, seconds)
+
+    def result(self) -> BackendResult:
+        values = self.solver.estimate()
+        poses = [values.atPose3(X(i)) for i in range(self.num_poses)]
+        ids = sorted(self.landmarks.landmarks)
+        landmark_values = [
+            values.atPose3(L(j))
+            if self.landmarks.landmarks[j].kind is LandmarkKind.POSE
+            else values.atPoint3(L(j))
+            for j in ids
+        ]
+        return BackendResult(
+            poses=poses,
+            landmark_ids=ids,
+            landmark_values=landmark_values,
+            records=self.records,
+            landmarks=self.landmarks,
+            switches=self.switches,
+            step_seconds=self.step_seconds,
+        )

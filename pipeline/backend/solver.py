@@ -1,0 +1,77 @@
+"""A thin iSAM2 wrapper: batched factor additions and removals, handles for factors, and the
+estimates and marginals the association step asks for."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from pipeline.config import Isam2Config
+
+
+class Isam2Solver:
+    """Collects factors and values, then applies them in one iSAM2 update.
+
+    Factors are named by handles (ints given by `add`), because iSAM2 only tells a factor's slot
+    after the update that inserts it; `remove` takes a handle of an already committed factor.
+    """
+
+    def __init__(self, config: Isam2Config):
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(config.relinearize_threshold)
+        params.relinearizeSkip = config.relinearize_skip
+        params.setFactorization(config.factorization)
+        self.isam = gtsam.ISAM2(params)
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._pending: list[int] = []
+        self._removals: list[int] = []
+        self._slots: dict[int, int] = {}
+        self._next_handle = 0
+        self.num_updates = 0
+
+    def add(self, factor: gtsam.NonlinearFactor) -> int:
+        self._graph.add(factor)
+        handle = self._next_handle
+        self._next_handle += 1
+        self._pending.append(handle)
+        return handle
+
+    def insert(self, key: int, value) -> None:
+        self._values.insert(key, value)
+
+    def remove(self, handle: int) -> None:
+        self._removals.append(self._slots.pop(handle))
+
+    @property
+    def has_pending(self) -> bool:
+        return self._graph.size() > 0 or bool(self._removals)
+
+    def update(self) -> set[int]:
+        """Apply what is pending; returns iSAM2's marked keys (new factors' keys, removed
+        factors' keys and every relinearised variable): the variables whose estimate moved."""
+        result = self.isam.update(self._graph, self._values, self._removals)
+        for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
+            self._slots[handle] = slot
+        self._graph = gtsam.NonlinearFactorGraph()
+        self._values = gtsam.Values()
+        self._pending = []
+        self._removals = []
+        self.num_updates += 1
+        return set(result.getMarkedKeys())
+
+    def pose(self, key: int) -> gtsam.Pose3:
+        return self.isam.calculateEstimatePose3(key)
+
+    def point(self, key: int) -> np.ndarray:
+        return self.isam.calculateEstimatePoint3(key)
+
+    def estimate(self) -> gtsam.Values:
+        return self.isam.calculateEstimate()
+
+    def marginal_covariance(self, key: int) -> np.ndarray:
+        return self.isam.marginalCovariance(key)
+
+    def joint_covariance(self, keys: list[int]) -> np.ndarray:
+        """Joint marginal covariance of `keys`, blocks in the order given."""
+        return self.isam.jointMarginalCovariance(keys).fullMatrix()

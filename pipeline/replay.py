@@ -1,0 +1,211 @@
+"""`mmslam replay`: a log through the back-end, then evaluation, then the outputs.
+
+Runs the loop and nothing else: the algorithm is in `pipeline/backend`, the metrics in
+`pipeline/evaluation.py`, the file formats in `pipeline/outputs.py`, viewing in `pipeline/viz`.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline import evaluation, outputs
+from pipeline.backend.factors import pose_from_message
+from pipeline.backend.slam import Backend, BackendResult
+from pipeline.config import Config
+from pipeline.errors import InputError
+from pipeline.log import DetectionLog, read_log
+from pipeline.log.messages import Detection, Odometry
+from pipeline.viz.sink import NullSink, Sink
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class ReplayResult:
+    method: str
+    out_dir: Path
+    num_poses: int
+    num_detections: int
+    num_landmarks: int
+    runtime_s: float
+    metrics: dict[str, Any] | None
+
+    def summary_line(self) -> str:
+        line = (
+            f"{self.method}: {self.num_poses} poses, {self.num_detections} detections, "
+            f"{self.num_landmarks} landmarks in {self.runtime_s:.2f} s"
+        )
+        if self.metrics:
+            t = self.metrics["translation_error_m"]
+            a = self.metrics["association"]
+            line += (
+                f"; translation error rmse {t['rmse']:.3f} m max {t['max']:.3f} m; associations "
+                f"{a['correct']} correct, {a['wrong']} wrong, {a['null']} null"
+            )
+        return line + f" -> {self.out_dir}"
+
+
+def keyframes(log: DetectionLog) -> Iterator[tuple[Odometry | None, list[Detection]]]:
+    """Per pose: the odometry that reaches it (none for pose 0) and all its detections, in log
+    order."""
+    by_pose: dict[int, list[Detection]] = {}
+    for message in log.detections:
+        by_pose.setdefault(message.pose_index, []).extend(message.detections)
+    for index in range(log.num_poses):
+        yield (log.odometry[index - 1] if index else None), by_pose.get(index, [])
+
+
+def pose_stamps_s(log: DetectionLog) -> np.ndarray:
+    """A time for every pose: odometry stamps for poses 1.., pose 0 from its ground truth or
+    detections, else from the first odometry."""
+    stamps = [0] * log.num_poses
+    for odometry in log.odometry:
+        stamps[odometry.to_index] = odometry.stamp_ns
+    first = [m.stamp_ns for m in log.ground_truth_poses if m.pose_index == 0]
+    first += [m.stamp_ns for m in log.detections if m.pose_index == 0]
+    if first:
+        stamps[0] = first[0]
+    elif log.odometry:
+        stamps[0] = log.odometry[0].stamp_ns
+    return np.array(stamps, dtype=np.int64) / 1e9
+
+
+def _check_inputs(log: DetectionLog, method: str) -> None:
+    if method == "known":
+        for index, message in enumerate(log.detections):
+            for k, detection in enumerate(message.detections):
+                if detection.truth_landmark_id is None:
+                    raise InputError(
+                        f"method 'known' needs truth_landmark_id on every detection: /detections "
+                        f"message {index} detection {k} has none"
+                    )
+
+
+def run_backend(
+    log: DetectionLog, method: str, config: Config, sink: Sink, progress: bool
+) -> Backend:
+    confusion = np.asarray(log.metadata.confusion_matrix, dtype=float)
+    backend = Backend(config, confusion, method)
+    steps = keyframes(log)
+    if progress and sys.stderr.isatty():
+        from tqdm import tqdm
+
+        steps = tqdm(steps, total=log.num_poses, desc=f"replay {method}", unit="pose")
+    for odometry, detections in steps:
+        report = backend.add_keyframe(odometry, detections)
+        sink.keyframe(report, backend)
+    return backend
+
+
+def compute_metrics(
+    log: DetectionLog, result: BackendResult, method: str, runtime_s: float
+) -> dict[str, Any] | None:
+    if not log.has_ground_truth:
+        return None
+    indices = [m.pose_index for m in log.ground_truth_poses]
+    reference = np.stack(
+        [pose_from_message(m.translation, m.rotation).matrix() for m in log.ground_truth_poses]
+    )
+    estimated = np.stack([result.poses[i].matrix() for i in indices])
+    translation, rotation = evaluation.absolute_errors(
+        estimated, reference, pose_stamps_s(log)[indices]
+    )
+    truth = [r.measurement.detection.truth_landmark_id for r in result.records]
+    chosen = [r.landmark_id for r in result.records]
+    counts = evaluation.association_counts(truth, chosen)
+    counts["unlabelled"] = sum(t is None for t in truth)
+    return {
+        "method": method,
+        "num_poses": log.num_poses,
+        "num_detections": log.num_detections,
+        "num_landmarks": len(result.landmark_ids),
+        "runtime_s": round(runtime_s, 3),
+        "translation_error_m": translation,
+        "rotation_error_rad": rotation,
+        "association": counts,
+        "switches": result.switches,
+    }
+
+
+def render_outputs(
+    log: DetectionLog, result: BackendResult, metrics: dict[str, Any] | None
+) -> dict[str, str]:
+    observations: dict[int, int] = {}
+    for record in result.records:
+        if record.landmark_id >= 0:
+            observations[record.landmark_id] = observations.get(record.landmark_id, 0) + 1
+    landmark_rows = []
+    for landmark_id, value in zip(result.landmark_ids, result.landmark_values, strict=True):
+        landmark = result.landmarks.landmarks[landmark_id]
+        position = value.translation() if hasattr(value, "translation") else value
+        probabilities = landmark.class_probabilities
+        landmark_rows.append(
+            (
+                landmark_id,
+                position,
+                landmark.map_class,
+                float(probabilities[landmark.map_class]),
+                observations.get(landmark_id, 0),
+            )
+        )
+    association_rows = [
+        (r.measurement.pose_index, r.measurement.detection_index, r.landmark_id, r.weight)
+        for r in result.records
+    ]
+    files = {
+        outputs.TRAJECTORY: outputs.trajectory_tum(
+            pose_stamps_s(log), [p.matrix() for p in result.poses]
+        ),
+        outputs.LANDMARKS: outputs.landmarks_csv(landmark_rows),
+        outputs.ASSOCIATIONS: outputs.associations_csv(association_rows),
+    }
+    if metrics is not None:
+        files[outputs.METRICS] = outputs.metrics_json(metrics)
+    return files
+
+
+def replay(
+    log_path: str | Path,
+    method: str,
+    out_dir: str | Path,
+    config: Config,
+    sink: Sink | None = None,
+    progress: bool = True,
+) -> ReplayResult:
+    """Replay a log with an association method; write the contract's outputs to `out_dir`."""
+    sink = sink or NullSink()
+    out_dir = Path(out_dir)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise InputError(f"--out {out_dir}: exists and is not a directory")
+    log = read_log(log_path)
+    _check_inputs(log, method)
+    try:
+        sink.start(log, method)
+        start = time.perf_counter()
+        backend = run_backend(log, method, config, sink, progress)
+        result = backend.result()
+        runtime_s = time.perf_counter() - start
+        metrics = compute_metrics(log, result, method, runtime_s)
+        outputs.write_outputs(
+            out_dir, render_outputs(log, result, metrics), stale=[outputs.METRICS]
+        )
+        sink.finish(result, metrics)
+    finally:
+        sink.close()
+    return ReplayResult(
+        method=method,
+        out_dir=out_dir,
+        num_poses=log.num_poses,
+        num_detections=log.num_detections,
+        num_landmarks=len(result.landmark_ids),
+        runtime_s=runtime_s,
+        metrics=metrics,
+    )

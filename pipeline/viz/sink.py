@@ -1,0 +1,35 @@
+"""The face every results sink shows the pipeline."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any, Protocol
+
+if TYPE_CHECKING:
+    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.log.messages import DetectionLog
+
+
+class Sink(Protocol):
+    def start(self, log: DetectionLog, method: str) -> None: ...
+
+    def keyframe(self, report: KeyframeReport, backend: Backend) -> None: ...
+
+    def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class NullSink:
+    """Shows nothing, costs nothing."""
+
+    def start(self, log: DetectionLog, method: str) -> None:
+        pass
+
+    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+        pass
+
+    def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

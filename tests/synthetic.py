@@ -1,0 +1,138 @@
+"""Small logs the tests write themselves: a path, point landmarks, and what a robot sees."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gtsam
+import numpy as np
+
+from pipeline.backend.geometry import bearing_elevation_range, quaternion_from_rotation
+from pipeline.log import (
+    Detection,
+    Detections,
+    GroundTruthLandmark,
+    GroundTruthLandmarks,
+    GroundTruthPose,
+    LogMetadata,
+    LogWriter,
+    Odometry,
+)
+
+ODOM_SIGMAS = np.array([1e-3, 1e-3, 2e-3, 0.02, 0.01, 0.005])  # rx ry rz tx ty tz
+MEAS_SIGMAS = np.array([0.01, 0.01, 0.1])  # bearing, elevation, range
+
+
+@dataclass
+class Scene:
+    poses: list[gtsam.Pose3]
+    landmarks: np.ndarray  # (M, 3)
+    classes: np.ndarray  # (M,)
+    num_classes: int = 2
+    confusion: np.ndarray | None = None
+    max_range: float = 12.0
+    # (pose index, landmark) pairs to observe; None: every landmark within range.
+    sightings: list[tuple[int, int]] | None = None
+    # (pose index, landmark) pairs whose detection reports another class
+    misreports: set[tuple[int, int]] = field(default_factory=set)
+
+    def visible(self) -> list[tuple[int, int]]:
+        if self.sightings is not None:
+            return self.sightings
+        out = []
+        for i, pose in enumerate(self.poses):
+            for j, lm in enumerate(self.landmarks):
+                p = pose.transformTo(lm)
+                if np.linalg.norm(p) < self.max_range and p[0] > 0.5:
+                    out.append((i, j))
+        return out
+
+
+def pose_tuple(pose: gtsam.Pose3) -> tuple[tuple, tuple]:
+    return tuple(pose.translation()), tuple(quaternion_from_rotation(pose.rotation().matrix()))
+
+
+def square_loop(side: float = 20.0, step: float = 1.0, laps: float = 1.0) -> list[gtsam.Pose3]:
+    """A square driven counter-clockwise, poses every `step` metres, turning at the corners."""
+    poses = [gtsam.Pose3()]
+    per_side = int(round(side / step))
+    total_sides = int(round(4 * laps))
+    for _ in range(total_sides):
+        for k in range(per_side):
+            turn = np.pi / 2 if k == per_side - 1 else 0.0
+            delta = gtsam.Pose3(gtsam.Rot3.Yaw(turn), np.array([step, 0.0, 0.0]))
+            poses.append(poses[-1].compose(delta))
+    return poses
+
+
+def write_scene(
+    path: Path,
+    scene: Scene,
+    seed: int = 0,
+    odom_noise: float = 1.0,
+    meas_noise: float = 1.0,
+    truth_ids: bool = True,
+    ground_truth: bool = True,
+) -> Path:
+    """Write the scene as a contract-v1 log; noise scales 0 give exact measurements."""
+    rng = np.random.default_rng(seed)
+    C = scene.num_classes
+    confusion = scene.confusion if scene.confusion is not None else np.eye(C)
+    metadata = LogMetadata(
+        num_classes=C,
+        confusion_matrix=tuple(tuple(float(v) for v in row) for row in confusion),
+        class_names=tuple(f"class{c}" for c in range(C)),
+        source="tests/synthetic.py",
+    )
+    odom_cov = np.diag(ODOM_SIGMAS**2)
+    meas_cov = np.diag(MEAS_SIGMAS**2)
+    by_pose: dict[int, list[int]] = {}
+    for i, j in scene.visible():
+        by_pose.setdefault(i, []).append(j)
+    stamp = lambda i: 1_000_000_000 + i * 100_000_000  # noqa: E731
+    with LogWriter(path, metadata) as w:
+        if ground_truth:
+            w.write(
+                GroundTruthLandmarks(
+                    stamp(0),
+                    tuple(
+                        GroundTruthLandmark(j, int(c), tuple(map(float, lm)))
+                        for j, (lm, c) in enumerate(
+                            zip(scene.landmarks, scene.classes, strict=True)
+                        )
+                    ),
+                )
+            )
+        for i, pose in enumerate(scene.poses):
+            if i > 0:
+                true_step = scene.poses[i - 1].between(pose)
+                noisy = true_step.compose(
+                    gtsam.Pose3.Expmap(rng.normal(size=6) * ODOM_SIGMAS * odom_noise)
+                )
+                t, q = pose_tuple(noisy)
+                w.write(Odometry(stamp(i), i - 1, i, t, q, tuple(odom_cov.ravel())))
+            if ground_truth:
+                t, q = pose_tuple(pose)
+                w.write(GroundTruthPose(stamp(i), i, t, q))
+            dets = []
+            for j in by_pose.get(i, []):
+                z = bearing_elevation_range(pose.transformTo(scene.landmarks[j]))
+                z = z + rng.normal(size=3) * MEAS_SIGMAS * meas_noise
+                reported = int(scene.classes[j])
+                if (i, j) in scene.misreports:
+                    reported = (reported + 1) % C
+                dets.append(
+                    Detection(
+                        class_id=reported,
+                        score=0.9,
+                        bearing=float(z[0]),
+                        elevation=float(z[1]),
+                        range=float(z[2]),
+                        covariance=tuple(meas_cov.ravel()),
+                        source="bbox",
+                        truth_landmark_id=j if truth_ids else None,
+                    )
+                )
+            w.write(Detections(stamp(i), i, tuple(dets)))
+    return path

@@ -36,6 +36,9 @@ class Scene:
     sightings: list[tuple[int, int]] | None = None
     # (pose index, landmark) pairs whose detection reports another class
     misreports: set[tuple[int, int]] = field(default_factory=set)
+    # pose index -> (odometry the log reports reaching it, its 6 tangent sigmas), for steps
+    # where the odometry is wrong and says how uncertain it is
+    odometry_overrides: dict[int, tuple[gtsam.Pose3, np.ndarray]] = field(default_factory=dict)
 
     def visible(self) -> list[tuple[int, int]]:
         if self.sightings is not None:
@@ -56,8 +59,8 @@ def pose_tuple(pose: gtsam.Pose3) -> tuple[tuple, tuple]:
 def square_loop(side: float = 20.0, step: float = 1.0, laps: float = 1.0) -> list[gtsam.Pose3]:
     """A square driven counter-clockwise, poses every `step` metres, turning at the corners."""
     poses = [gtsam.Pose3()]
-    per_side = int(round(side / step))
-    total_sides = int(round(4 * laps))
+    per_side = round(side / step)
+    total_sides = round(4 * laps)
     for _ in range(total_sides):
         for k in range(per_side):
             turn = np.pi / 2 if k == per_side - 1 else 0.0
@@ -105,7 +108,11 @@ def write_scene(
                 )
             )
         for i, pose in enumerate(scene.poses):
-            if i > 0:
+            if i in scene.odometry_overrides:
+                reported, sigmas = scene.odometry_overrides[i]
+                t, q = pose_tuple(reported)
+                w.write(Odometry(stamp(i), i - 1, i, t, q, tuple(np.diag(sigmas**2).ravel())))
+            elif i > 0:
                 true_step = scene.poses[i - 1].between(pose)
                 noisy = true_step.compose(
                     gtsam.Pose3.Expmap(rng.normal(size=6) * ODOM_SIGMAS * odom_noise)
@@ -136,3 +143,46 @@ def write_scene(
                 )
             w.write(Detections(stamp(i), i, tuple(dets)))
     return path
+
+
+KIDNAP_POSE = 5
+KIDNAP_SHIFT_M = 4.0
+
+
+def kidnap_scene(alias_seen_before: bool) -> tuple[Scene, int, int]:
+    """A robot that slides 4 m sideways at pose 5 while its odometry says it went straight (and
+    admits a 4 m uncertainty). From there, landmark `alias` (class 0) appears exactly where the
+    drifted estimate expects landmark `lookalike`, also class 0, seen before the slide; five
+    class-1 landmarks seen before and after the slide tell the truth.
+
+    `alias_seen_before`: the alias was mapped before the slide too (a choice between two known
+    landmarks, which a max-mixture resolves by switching), or it is new (only a wrong loop
+    closure or the null hypothesis explain it). Returns (scene, lookalike id, alias id).
+    """
+    straight = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
+    poses = [gtsam.Pose3()]
+    for i in range(1, 10):
+        shift = KIDNAP_SHIFT_M if i == KIDNAP_POSE else 0.0
+        poses.append(poses[-1].compose(gtsam.Pose3(gtsam.Rot3(), np.array([1.0, shift, 0.0]))))
+    lookalike = np.array([35.0, 4.0, 0.0])
+    alias = lookalike + np.array([0.0, KIDNAP_SHIFT_M, 0.0])
+    truthful = [[33.0, -8.0, 0.0], [39.0, -12.0, 0.0], [45.0, -5.0, 0.0], [51.0, -13.0, 0.0],
+                [57.0, -4.0, 0.0]]  # fmt: skip
+    landmarks = np.array([lookalike, alias, *truthful])
+    classes = np.array([0, 0, 1, 1, 1, 1, 1])
+    sightings = []
+    for i in range(len(poses)):
+        seen = [0, *range(2, 7)] if i < KIDNAP_POSE else [1, *range(2, 7)]
+        if alias_seen_before and i < KIDNAP_POSE:
+            seen.append(1)
+        sightings += [(i, j) for j in seen]
+    sigmas = np.array([1e-3, 1e-3, 1e-3, 0.05, KIDNAP_SHIFT_M, 0.05])
+    scene = Scene(
+        poses,
+        landmarks,
+        classes,
+        max_range=80.0,
+        sightings=sightings,
+        odometry_overrides={KIDNAP_POSE: (straight, sigmas)},
+    )
+    return scene, 0, 1

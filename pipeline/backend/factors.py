@@ -31,21 +31,21 @@ def bearing_elevation_to_direction(bearing: float, elevation: float) -> np.ndarr
 
 
 def unit3_range_covariance(bearing: float, elevation: float, covariance: np.ndarray) -> np.ndarray:
-    """(bearing, elevation, range) covariance to GTSAM's bearing-range error coordinates.
+    """(bearing, elevation, range) covariance in the error coordinates of GTSAM's bearing-range
+    factor: the 2-D tangent plane of the direction, then range.
 
-    GTSAM's `BearingRangeFactor3D` measures the direction as a Unit3 whose error lives in the 2-D
-    tangent basis B of the measured direction: e = B^T (d_predicted - d_measured) to first order.
-    The direction's derivative by (bearing, elevation) maps our angles into that basis.
+    GTSAM expresses the direction error in the tangent basis of the *predicted* direction, and
+    `Unit3`'s basis turns abruptly where two components of the direction swap magnitude. So
+    only a direction noise that is the same in every tangent direction weighs errors the same
+    wherever the estimate is: the tangent block is made isotropic with its larger variance (a
+    little less information than the detection carries, never more), and the direction-range
+    correlation is left out.
     """
-    sb, cb = np.sin(bearing), np.cos(bearing)
-    se, ce = np.sin(elevation), np.cos(elevation)
-    d_direction = np.array([[-ce * sb, -se * cb], [ce * cb, -se * sb], [0.0, ce]])
-    basis = gtsam.Unit3(bearing_elevation_to_direction(bearing, elevation)).basis()
-    J = np.zeros((3, 3))
-    J[:2, :2] = basis.T @ d_direction
-    J[2, 2] = 1.0
-    out = J @ covariance @ J.T
-    return 0.5 * (out + out.T)
+    # On the unit sphere a bearing change moves the direction by cos(elevation) times as much.
+    scale = np.diag([np.cos(elevation), 1.0])
+    angular = np.asarray(covariance, dtype=float)[:2, :2]
+    variance = float(np.linalg.eigvalsh(scale @ angular @ scale)[-1])
+    return np.diag([variance, variance, float(covariance[2, 2])])
 
 
 def point_measurement_factor(

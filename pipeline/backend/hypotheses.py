@@ -94,11 +94,11 @@ class EstimateCache:
         return self._landmarks[landmark_id]
 
 
-def component_log_likelihoods(
+def component_mahalanobis(
     records: list[AssociationRecord], estimates: EstimateCache
 ) -> list[np.ndarray]:
-    """log N(h(x, l_k) - z; 0, Gamma) of every component of every record (normaliser included),
-    computed in one vectorised pass per kind of landmark."""
+    """|h(x, l_k) - z|^2 in Gamma's metric, for every component of every record, computed in
+    one vectorised pass per kind of landmark."""
     out: list[np.ndarray] = [np.empty(len(r.landmark_ids)) for r in records]
     for kind in LandmarkKind:
         pairs = [
@@ -128,8 +128,6 @@ def component_log_likelihoods(
             residual = point_residual(z_pred, np.stack([r.measurement.vector for r in rec]))
         information = np.stack([r.measurement.information for r in rec])
         maha = np.einsum("ni,nij,nj->n", residual, information, residual)
-        normaliser = np.array([r.measurement.log_normaliser for r in rec])
-        loglik = -0.5 * maha - normaliser
-        for (i, k), value in zip(pairs, loglik, strict=True):
+        for (i, k), value in zip(pairs, maha, strict=True):
             out[i][k] = value
     return out

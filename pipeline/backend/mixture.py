@@ -35,11 +35,6 @@ def null_component_nll(null_weight: float, null_sigma: float, dim: int) -> float
     return -math.log(null_weight) + 0.5 * dim * (LOG_2PI + 2.0 * math.log(null_sigma))
 
 
-def best_components(nll: np.ndarray) -> np.ndarray:
-    """Row-wise argmin of a (records x components) table padded with +inf."""
-    return np.argmin(nll, axis=1)
-
-
 def em_weights(log_prior: np.ndarray, log_likelihood: np.ndarray) -> np.ndarray:
     """E-step of GPDA: posterior association weights per row, padded entries at -inf."""
     log_post = np.asarray(log_prior) + np.asarray(log_likelihood)

@@ -73,7 +73,8 @@ def read_times(path: str | Path) -> np.ndarray:
 
 
 def write_times(path: str | Path, times: np.ndarray) -> None:
-    np.savetxt(path, np.asarray(times), fmt="%.6e")
+    # KITTI's own files use %e; ten significant digits keep microseconds past 100 s.
+    np.savetxt(path, np.asarray(times), fmt="%.9e")
 
 
 def read_calibration(path: str | Path, width: int, height: int) -> StereoIntrinsics:

@@ -274,9 +274,6 @@ def _check_channels(raw: RawLog) -> None:
                 f"schema encoding is {info.schema_encoding!r}, expected 'jsonschema'",
                 topic,
             )
-    for topic in schemas.REQUIRED_TOPICS:
-        if topic not in raw.topics:
-            raise LogError(raw.path, f"the log has no {topic} topic")
 
 
 def read_log(path: str | os.PathLike, load_images: bool = False) -> DetectionLog:

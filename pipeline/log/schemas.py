@@ -165,8 +165,6 @@ _COMPRESSED_IMAGE = {
 for _topic in IMAGE_TOPICS:
     SCHEMAS[_topic] = ("foxglove.CompressedImage", _COMPRESSED_IMAGE)
 
-REQUIRED_TOPICS = (ODOMETRY, DETECTIONS)
-
 
 def schema_bytes(topic: str) -> bytes:
     """The JSON Schema of a topic, as written into the MCAP schema record."""

@@ -79,10 +79,8 @@ class BackendContext:
         for key in marked:
             symbol = gtsam.Symbol(key)
             index = symbol.index()
-            if chr(symbol.chr()) == "x":
-                value = estimates.pose(index)
-            else:
-                value = estimates.landmark(index)
+            is_pose = chr(symbol.chr()) == "x"
+            value = estimates.pose(index) if is_pose else estimates.landmark(index)
             flat = (
                 np.concatenate([value[0].ravel(), value[1]]) if isinstance(value, tuple) else value
             )
@@ -91,7 +89,7 @@ class BackendContext:
                 continue
             self._last_moved[key] = flat
             moved.add(key)
-            if chr(symbol.chr()) == "l":
+            if not is_pose:
                 self.landmarks.move(index, value[1] if isinstance(value, tuple) else value)
         return moved
 

@@ -12,9 +12,10 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.backend.candidates import Candidates
-from pipeline.backend.hypotheses import AssociationRecord, component_log_likelihoods
+from pipeline.backend.hypotheses import AssociationRecord, component_mahalanobis
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import MixtureMethod
+from pipeline.backend.mixture import em_weights
 
 
 class GaussianPDA(MixtureMethod):
@@ -49,11 +50,10 @@ class GaussianPDA(MixtureMethod):
             if not records:
                 break
             reweighted = 0
-            logliks = component_log_likelihoods(records, self.context.estimates())
-            for record, loglik in zip(records, logliks, strict=True):
-                log_post = np.log(record.weights) + loglik
-                weights = np.exp(log_post - log_post.max())
-                weights /= weights.sum()
+            mahalanobis = component_mahalanobis(records, self.context.estimates())
+            for record, maha in zip(records, mahalanobis, strict=True):
+                # Components share Gamma, so the Gaussian's normaliser cancels.
+                weights = em_weights(np.log(record.weights)[None], -0.5 * maha[None])[0]
                 if np.max(np.abs(weights - record.graph_weights)) <= tolerance:
                     continue
                 if np.argmax(weights) != np.argmax(record.graph_weights):

@@ -13,10 +13,10 @@ import numpy as np
 
 from pipeline.backend.association import with_null_hypothesis
 from pipeline.backend.candidates import Candidates
-from pipeline.backend.hypotheses import NULL, AssociationRecord, component_log_likelihoods
+from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import BackendContext, MixtureMethod
-from pipeline.backend.mixture import null_component_nll
+from pipeline.backend.mixture import component_nll, null_component_nll
 
 
 class MaxMixture(MixtureMethod):
@@ -51,10 +51,9 @@ class MaxMixture(MixtureMethod):
     def _best(self, records: list[AssociationRecord], estimates) -> list[int]:
         """Index of each record's winning component (NULL for the null hypothesis)."""
         best = []
-        for record, loglik in zip(
-            records, component_log_likelihoods(records, estimates), strict=True
-        ):
-            nll = -np.log(record.weights) - loglik
+        mahalanobis = component_mahalanobis(records, estimates)
+        for record, maha in zip(records, mahalanobis, strict=True):
+            nll = component_nll(np.log(record.weights), maha, record.measurement.log_normaliser)
             winner = int(np.argmin(nll))
             if record.null_weight > 0:
                 null_nll = null_component_nll(

@@ -1,0 +1,292 @@
+"""The contract-v1 log: round trips, and every bad input the contract lists."""
+
+import json
+import math
+
+import pytest
+from mcap.writer import Writer
+
+from pipeline.errors import LogError
+from pipeline.log import (
+    CompressedImage,
+    Detection,
+    Detections,
+    GroundTruthLandmark,
+    GroundTruthLandmarks,
+    GroundTruthPose,
+    LogMetadata,
+    LogWriter,
+    Odometry,
+    RelativePose,
+    StereoCalibration,
+    read_log,
+)
+from pipeline.log import schemas as topics
+from pipeline.log.mcap_io import metadata_record
+
+I3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+I6 = tuple(float(i == j) for i in range(6) for j in range(6))
+METADATA = LogMetadata(2, ((0.9, 0.1), (0.2, 0.8)), ("car", "van"), "tests")
+
+
+def odometry(i: int) -> dict:
+    return {
+        "stamp_ns": 10 * (i + 1),
+        "from_index": i,
+        "to_index": i + 1,
+        "translation": [1.0, 0.0, 0.0],
+        "rotation": [0.0, 0.0, 0.0, 1.0],
+        "covariance": list(I6),
+    }
+
+
+def detection(**changes) -> dict:
+    d = {
+        "class_id": 1,
+        "score": 0.9,
+        "bearing": 0.1,
+        "elevation": 0.0,
+        "range": 5.0,
+        "covariance": list(I3),
+        "source": "bbox",
+    }
+    d.update(changes)
+    return d
+
+
+def detections(pose: int, *dets: dict) -> dict:
+    return {"stamp_ns": 10 * pose, "pose_index": pose, "detections": list(dets)}
+
+
+def write_raw(path, messages, metadata=None, schema_names=None, encoding="json"):
+    """An MCAP file with messages given as (topic, dict or raw bytes, log_time or None)."""
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start()
+        if metadata is not False:
+            w.add_metadata("mmslam", metadata or metadata_record(METADATA))
+        channels = {}
+        for topic, payload, log_time in messages:
+            if topic not in channels:
+                name = (schema_names or {}).get(topic, topics.SCHEMAS[topic][0])
+                sid = w.register_schema(name, "jsonschema", topics.schema_bytes(topic))
+                channels[topic] = w.register_channel(topic, encoding, sid)
+            data = payload if isinstance(payload, bytes) else json.dumps(payload).encode()
+            if log_time is None:
+                log_time = payload["stamp_ns"]
+            w.add_message(channels[topic], log_time=log_time, data=data, publish_time=log_time)
+        w.finish()
+    return path
+
+
+def good_messages() -> list:
+    return [
+        (topics.DETECTIONS, detections(0, detection()), None),
+        (topics.ODOMETRY, odometry(0), None),
+        (topics.DETECTIONS, detections(1, detection(), detection(class_id=0)), None),
+        (topics.ODOMETRY, odometry(1), None),
+    ]
+
+
+def test_every_message_type_round_trips(tmp_path):
+    rp = RelativePose((1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0), I6)
+    det = Detection(1, 0.95, 0.1, -0.2, 7.5, I3, "apriltag", (1.0, 2.0, 30.0, 40.0), rp, 17)
+    messages = [
+        StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I6[:16]),
+        GroundTruthLandmarks(0, (GroundTruthLandmark(17, 1, (1.0, 2.0, 3.0)),)),
+        GroundTruthPose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+        Detections(0, 0, (det,)),
+        Odometry(100, 0, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), I6),
+        GroundTruthPose(100, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
+        Detections(100, 1, ()),
+    ]
+    image = CompressedImage(100, "left", "png", b"\x89PNG fake bytes")
+    with LogWriter(tmp_path / "a.mcap", METADATA) as w:
+        for m in messages:
+            w.write(m)
+        w.write(image, topics.LEFT_IMAGE)
+    log = read_log(tmp_path / "a.mcap", load_images=True)
+    assert log.metadata == METADATA
+    assert log.calibration == messages[0]
+    assert log.ground_truth_landmarks == messages[1]
+    assert log.ground_truth_poses == [messages[2], messages[5]]
+    assert log.detections == [messages[3], messages[6]]
+    assert log.odometry == [messages[4]]
+    assert log.images[topics.LEFT_IMAGE] == [image]
+    assert log.num_poses == 2 and log.num_detections == 1
+
+
+def test_same_messages_give_the_same_bytes(tmp_path):
+    for name in ("a", "b"):
+        with LogWriter(tmp_path / f"{name}.mcap", METADATA) as w:
+            w.write(Detections(0, 0, (Detection(0, 0.9, 0.0, 0.0, 1.0, I3, "bbox"),)))
+    assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+
+
+def test_a_failed_write_leaves_nothing_behind(tmp_path):
+    with pytest.raises(RuntimeError), LogWriter(tmp_path / "x.mcap", METADATA) as w:
+        w.write(Detections(0, 0, ()))
+        raise RuntimeError("stop")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_good_raw_log_reads(tmp_path):
+    log = read_log(write_raw(tmp_path / "good.mcap", good_messages()))
+    assert log.num_poses == 3 and log.num_detections == 3
+
+
+def _with(index: int, topic: str, payload, log_time=None) -> list:
+    messages = good_messages()
+    messages[index] = (topic, payload, log_time)
+    return messages
+
+
+BAD_MESSAGES = {
+    "malformed JSON": (
+        _with(2, topics.DETECTIONS, b'{"stamp_ns": 10, "pose_index": 1, "detections": [', 10),
+        "/detections message 1: malformed JSON",
+    ),
+    "NaN": (
+        _with(
+            2,
+            topics.DETECTIONS,
+            b'{"stamp_ns":10,"pose_index":1,"detections":[{"class_id":0,'
+            b'"score":0.9,"bearing":NaN,"elevation":0,"range":5,"covariance":[1,0,0,0,1,0,0,0,'
+            b'1],"source":"bbox"}]}',
+            10,
+        ),
+        "/detections message 1: non-finite number NaN",
+    ),
+    "infinity": (
+        _with(
+            1,
+            topics.ODOMETRY,
+            b'{"stamp_ns":10,"from_index":0,"to_index":1,"translation":'
+            b'[1e999,0,0],"rotation":[0,0,0,1],"covariance":['
+            + ",".join(map(str, I6)).encode()
+            + b"]}",
+            10,
+        ),
+        "/odometry message 0: 'translation' holds a non-finite number",
+    ),
+    "covariance not positive definite": (
+        _with(
+            2, topics.DETECTIONS, detections(1, detection(covariance=[1, 0, 0, 0, -1, 0, 0, 0, 1]))
+        ),
+        "/detections message 1: 'detections[0].covariance' is not positive definite",
+    ),
+    "odometry covariance not positive definite": (
+        _with(1, topics.ODOMETRY, {**odometry(0), "covariance": [0.0] * 36}),
+        "/odometry message 0: 'covariance' is not positive definite",
+    ),
+    "class outside 0..C-1": (
+        _with(0, topics.DETECTIONS, detections(0, detection(class_id=2))),
+        "/detections message 0: 'detections[0].class_id' 2 is outside 0..1",
+    ),
+    "odometry skips a pose": (
+        _with(3, topics.ODOMETRY, {**odometry(1), "from_index": 2, "to_index": 3}),
+        "/odometry message 1: links pose 2 to 3; expected 1 to 2",
+    ),
+    "odometry does not step by one": (
+        _with(1, topics.ODOMETRY, {**odometry(0), "to_index": 2}),
+        "/odometry message 0: links pose 0 to 2; expected 0 to 1",
+    ),
+    "detection at an unreached pose": (
+        _with(2, topics.DETECTIONS, detections(7, detection())),
+        "/detections message 1: pose_index 7 is not reached by odometry",
+    ),
+    "missing field": (
+        _with(0, topics.DETECTIONS, {"stamp_ns": 0, "pose_index": 0}),
+        "/detections message 0: missing field 'detections'",
+    ),
+    "log time differs from stamp": (
+        _with(1, topics.ODOMETRY, odometry(0), 999),
+        "/odometry message 0: log_time 999 differs from stamp_ns 10",
+    ),
+    "not a unit quaternion": (
+        _with(1, topics.ODOMETRY, {**odometry(0), "rotation": [0.0, 0.0, 0.0, 2.0]}),
+        "/odometry message 0: 'rotation' is not a unit quaternion",
+    ),
+    "unknown source": (
+        _with(0, topics.DETECTIONS, detections(0, detection(source="lidar"))),
+        "/detections message 0: 'detections[0].source' must be one of",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_MESSAGES))
+def test_bad_messages_are_refused_naming_topic_and_position(tmp_path, case):
+    messages, expected = BAD_MESSAGES[case]
+    path = write_raw(tmp_path / "bad.mcap", messages)
+    with pytest.raises(LogError) as info:
+        read_log(path)
+    message = str(info.value)
+    assert expected in message
+    assert str(path) in message
+    assert "\n" not in message
+
+
+def test_truncated_file_is_refused(tmp_path):
+    path = write_raw(tmp_path / "whole.mcap", good_messages() * 20)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogError, match="truncated or corrupt"):
+        read_log(cut)
+
+
+@pytest.mark.parametrize(
+    "metadata,expected",
+    [
+        (False, "no metadata record named 'mmslam'"),
+        ({**metadata_record(METADATA), "format_version": "2"}, "format_version '2'"),
+        (
+            {**metadata_record(METADATA), "confusion_matrix": "[[0.9, 0.2], [0.2, 0.8]]"},
+            "confusion_matrix row 0 sums to 1.1",
+        ),
+        ({**metadata_record(METADATA), "confusion_matrix": "[[1.0]]"}, "must be 2 x 2"),
+        (
+            {**metadata_record(METADATA), "class_names": '["car"]'},
+            "class_names must be a list of 2",
+        ),
+        (
+            {k: v for k, v in metadata_record(METADATA).items() if k != "num_classes"},
+            "lacks 'num_classes'",
+        ),
+    ],
+)
+def test_bad_metadata_is_refused(tmp_path, metadata, expected):
+    path = write_raw(tmp_path / "meta.mcap", good_messages(), metadata=metadata)
+    with pytest.raises(LogError, match=expected.replace("[", r"\[")):
+        read_log(path)
+
+
+def test_wrong_schema_and_encoding_are_refused(tmp_path):
+    path = write_raw(tmp_path / "s.mcap", good_messages(), schema_names={"/odometry": "nav.Odom"})
+    with pytest.raises(LogError, match=r"/odometry: schema is .nav\.Odom."):
+        read_log(path)
+    path = write_raw(tmp_path / "e.mcap", good_messages(), encoding="cbor")
+    with pytest.raises(LogError, match="message encoding is 'cbor'"):
+        read_log(path)
+
+
+def test_missing_file_and_directory_are_refused(tmp_path):
+    with pytest.raises(LogError, match="no such file"):
+        read_log(tmp_path / "nope.mcap")
+    with pytest.raises(LogError, match="is a directory"):
+        read_log(tmp_path)
+
+
+def test_not_an_mcap_file_is_refused(tmp_path):
+    path = tmp_path / "text.mcap"
+    path.write_text("hello")
+    with pytest.raises(LogError, match="truncated or corrupt"):
+        read_log(path)
+
+
+def test_reader_accepts_what_the_writer_writes_for_every_float(tmp_path):
+    tiny = 1e-300
+    with LogWriter(tmp_path / "f.mcap", METADATA) as w:
+        w.write(Detections(0, 0, (Detection(0, 0.0, -math.pi, tiny, 1e6, I3, "bbox"),)))
+    (det,) = read_log(tmp_path / "f.mcap").detections[0].detections
+    assert det.bearing == -math.pi and det.elevation == tiny and det.range == 1e6

@@ -12,6 +12,7 @@ from typing import Any, get_type_hints
 from pipeline.errors import InputError
 
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "default.toml"
+MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
 INSTALLED_CONFIG = Path(sys.prefix) / "share" / "mmslam" / "configs" / "default.toml"
 
 
@@ -20,6 +21,7 @@ class AssociationConfig:
     chi2_confidence: float
     null_weight: float
     null_sigma: float
+    joint_marginals: bool
     min_weight: float
     search_sigmas: float
     search_margin_m: float
@@ -38,6 +40,7 @@ class GpdaConfig:
 
 @dataclass(frozen=True)
 class MixtureConfig:
+    selection: str
     max_switch_rounds: int
 
 
@@ -70,6 +73,8 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return tomllib.load(f)
     except FileNotFoundError:
         raise InputError(f"config {path}: no such file") from None
+    except OSError as exc:
+        raise InputError(f"config {path}: cannot be read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"config {path}: not valid TOML ({exc})") from None
 
@@ -127,6 +132,10 @@ def _check(config: Config, path: Path) -> None:
         raise InputError(f"config {path}: association.null_weight must be in (0, 1)")
     if a.null_sigma <= 0.0:
         raise InputError(f"config {path}: association.null_sigma must be positive")
+    if config.mixture.selection not in MIXTURE_SELECTIONS:
+        raise InputError(
+            f"config {path}: mixture.selection must be one of {', '.join(MIXTURE_SELECTIONS)}"
+        )
     if config.isam2.factorization not in ("CHOLESKY", "QR"):
         raise InputError(f"config {path}: isam2.factorization must be CHOLESKY or QR")
     if config.gpda.max_iterations < 1 or config.mixture.max_switch_rounds < 1:

@@ -146,14 +146,14 @@ def write_scene(
 
 
 KIDNAP_POSE = 5
-KIDNAP_SHIFT_M = 4.0
+KIDNAP_SHIFT_M = 6.0
 
 
-def kidnap_scene(alias_seen_before: bool) -> tuple[Scene, int, int]:
-    """A robot that slides 4 m sideways at pose 5 while its odometry says it went straight (and
-    admits a 4 m uncertainty). From there, landmark `alias` (class 0) appears exactly where the
-    drifted estimate expects landmark `lookalike`, also class 0, seen before the slide; five
-    class-1 landmarks seen before and after the slide tell the truth.
+def kidnap_scene(alias_seen_before: bool, shift: float = KIDNAP_SHIFT_M) -> tuple[Scene, int, int]:
+    """A robot that slides `shift` metres sideways at pose 5 while its odometry says it went
+    straight (and admits that much uncertainty). From there, landmark `alias` (class 0) appears
+    exactly where the drifted estimate expects landmark `lookalike`, also class 0, seen before
+    the slide; seven class-1 landmarks seen before and after the slide tell the truth.
 
     `alias_seen_before`: the alias was mapped before the slide too (a choice between two known
     landmarks, which a max-mixture resolves by switching), or it is new (only a wrong loop
@@ -162,21 +162,21 @@ def kidnap_scene(alias_seen_before: bool) -> tuple[Scene, int, int]:
     straight = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
     poses = [gtsam.Pose3()]
     for i in range(1, 10):
-        shift = KIDNAP_SHIFT_M if i == KIDNAP_POSE else 0.0
-        poses.append(poses[-1].compose(gtsam.Pose3(gtsam.Rot3(), np.array([1.0, shift, 0.0]))))
-    lookalike = np.array([35.0, 4.0, 0.0])
-    alias = lookalike + np.array([0.0, KIDNAP_SHIFT_M, 0.0])
-    truthful = [[33.0, -8.0, 0.0], [39.0, -12.0, 0.0], [45.0, -5.0, 0.0], [51.0, -13.0, 0.0],
-                [57.0, -4.0, 0.0]]  # fmt: skip
+        slide = shift if i == KIDNAP_POSE else 0.0
+        poses.append(poses[-1].compose(gtsam.Pose3(gtsam.Rot3(), np.array([1.0, slide, 0.0]))))
+    lookalike = np.array([40.0, 6.0, 0.0])
+    alias = lookalike + np.array([0.0, shift, 0.0])
+    truthful = [[36.0, -8.0, 0.0], [41.0, -12.0, 0.0], [46.0, -6.0, 0.0], [51.0, -13.0, 0.0],
+                [56.0, -5.0, 0.0], [61.0, -10.0, 0.0], [66.0, -7.0, 0.0]]  # fmt: skip
     landmarks = np.array([lookalike, alias, *truthful])
-    classes = np.array([0, 0, 1, 1, 1, 1, 1])
+    classes = np.array([0, 0] + [1] * len(truthful))
     sightings = []
     for i in range(len(poses)):
-        seen = [0, *range(2, 7)] if i < KIDNAP_POSE else [1, *range(2, 7)]
+        seen = [0 if i < KIDNAP_POSE else 1, *range(2, len(landmarks))]
         if alias_seen_before and i < KIDNAP_POSE:
             seen.append(1)
         sightings += [(i, j) for j in seen]
-    sigmas = np.array([1e-3, 1e-3, 1e-3, 0.05, KIDNAP_SHIFT_M, 0.05])
+    sigmas = np.array([1e-3, 1e-3, 1e-3, 0.05, shift, 0.05])
     scene = Scene(
         poses,
         landmarks,

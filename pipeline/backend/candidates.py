@@ -52,7 +52,7 @@ class Candidates:
     landmark_ids: np.ndarray
     weights: np.ndarray
     semantic: np.ndarray  # P(reported class | landmark)
-    mahalanobis_sq: np.ndarray
+    mahalanobis_sq: np.ndarray  # NaN where not needed: a sure, lone candidate
     searched: int  # how many landmarks the spatial search returned
 
     @staticmethod
@@ -102,59 +102,87 @@ class CandidateScorer:
     def score(
         self, prediction: PosePrediction, measurements: list[Measurement]
     ) -> list[Candidates]:
-        """Candidates of every detection of one keyframe (one joint-marginal query for all)."""
+        """Candidates of every detection of one keyframe."""
         if not measurements or len(self.landmarks) == 0:
             return [Candidates.none() for _ in measurements]
-        anchor_cov = self.solver.marginal_covariance(prediction.anchor_key)
-        pose_cov = prediction.covariance(anchor_cov)
-        nearby = []
-        for m in measurements:
-            center, radius = search_radius(
-                prediction, pose_cov, m, self.config.search_sigmas, self.config.search_margin_m
-            )
-            nearby.append(self.landmarks.near(m.kind, center, radius))
-        union = sorted(set().union(*nearby))
-        if not union:
-            return [Candidates.none() for _ in measurements]
-
-        joint = self.solver.joint_covariance([prediction.anchor_key] + [L(j) for j in union])
-        offsets, offset = {}, 6
-        for j in union:
-            offsets[j] = offset
-            offset += 6 if self.landmarks.landmarks[j].kind is LandmarkKind.POSE else 3
-        A = prediction.transport
-        sigma_xx = A @ joint[:6, :6] @ A.T + prediction.process
-        estimates = {j: self._estimate(j) for j in union}
-        return [
-            self._score_one(prediction, m, ids, joint, offsets, sigma_xx, estimates)
-            for m, ids in zip(measurements, nearby, strict=True)
-        ]
+        pose_cov = prediction.covariance(self.solver.marginal_covariance(prediction.anchor_key))
+        joints: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # shared by the keyframe's detections
+        return [self._score_one(prediction, pose_cov, m, joints) for m in measurements]
 
     def _estimate(self, landmark_id: int):
         if self.landmarks.landmarks[landmark_id].kind is LandmarkKind.POSE:
             return self.solver.pose(L(landmark_id))
         return self.solver.point(L(landmark_id))
 
-    def _score_one(self, prediction, m, ids, joint, offsets, sigma_xx, estimates) -> Candidates:
+    def _landmark_covariance_bound(self, landmark_id: int) -> np.ndarray:
+        """The landmark's marginal covariance as last computed. It only shrinks as factors come
+        in, so an old one bounds it from above; removing a factor from the landmark forgets it
+        (`Landmark.covariance_bound = None`)."""
+        landmark = self.landmarks.landmarks[landmark_id]
+        if landmark.covariance_bound is None:
+            landmark.covariance_bound = self.solver.marginal_covariance(L(landmark_id))
+        return landmark.covariance_bound
+
+    def _joint(self, prediction: PosePrediction, landmark_id: int, joints: dict):
+        """(Sigma_xl, Sigma_ll) of the new pose and the landmark, from iSAM2's joint marginal of
+        the anchor pose and the landmark. Pairwise: GTSAM answers two keys from the Bayes tree,
+        but more than two by eliminating the whole graph. Without joint marginals (config), the
+        landmark's marginal and no cross-covariance."""
+        if landmark_id in joints:
+            return joints[landmark_id]
+        key = L(landmark_id)
+        if self.config.joint_marginals:
+            joint = self.solver.joint_covariance([prediction.anchor_key, key])
+            sigma_xl, sigma_ll = prediction.transport @ joint[:6, 6:], joint[6:, 6:]
+        else:
+            sigma_ll = self.solver.marginal_covariance(key)
+            sigma_xl = np.zeros((6, sigma_ll.shape[0]))
+        self.landmarks.landmarks[landmark_id].covariance_bound = sigma_ll
+        joints[landmark_id] = (sigma_xl, sigma_ll)
+        return joints[landmark_id]
+
+    def _score_one(
+        self, prediction: PosePrediction, pose_cov: np.ndarray, m: Measurement, joints: dict
+    ) -> Candidates:
+        center, radius = search_radius(
+            prediction, pose_cov, m, self.config.search_sigmas, self.config.search_margin_m
+        )
+        ids = self.landmarks.near(m.kind, center, radius)
         if not ids:
             return Candidates.none()
         gate = assoc.chi2_gate(m.dim, self.config.chi2_confidence)
-        A = prediction.transport
         R_x = prediction.pose.rotation().matrix()
         t_x = prediction.pose.translation()
-        kept, log_geo, semantic, maha = [], [], [], []
+        column = self.confusion[:, m.detection.class_id]
+        # First pass, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma
+        # whatever the pose-landmark correlation, which bounds each Mahalanobis distance from
+        # both sides. A landmark failing the gate under the larger R fails it for sure.
+        plausible = []
         for j in ids:
-            o = offsets[j]
-            d = m.dim
-            sigma_xl = A @ joint[:6, o : o + d]
-            sigma_ll = joint[o : o + d, o : o + d]
-            residual, H_x, H_l = self._residual(m, R_x, t_x, estimates[j])
-            HSH = (
-                H_x @ sigma_xx @ H_x.T
-                + H_x @ sigma_xl @ H_l.T
-                + H_l @ sigma_xl.T @ H_x.T
-                + H_l @ sigma_ll @ H_l.T
-            )
+            semantic = float(column @ self.landmarks.landmarks[j].class_probabilities)
+            if semantic <= 0.0:
+                continue  # a class the detector never confuses with this one: weight zero
+            residual, H_x, H_l = self._residual(m, R_x, t_x, self._estimate(j))
+            pose_part = H_x @ pose_cov @ H_x.T
+            bound = 2.0 * (pose_part + H_l @ self._landmark_covariance_bound(j) @ H_l.T)
+            if assoc.mahalanobis_squared(residual, bound + m.covariance) > gate:
+                continue
+            plausible.append((j, semantic, residual, H_x, H_l, pose_part))
+        if not plausible:
+            return Candidates.none(len(ids))
+        if len(plausible) == 1:
+            j, semantic, residual, *_ = plausible[0]
+            if assoc.mahalanobis_squared(residual, m.covariance) <= gate:
+                # Passes even under the smaller R and has no rival: weight 1, whatever R is.
+                return Candidates(
+                    np.array([j]), np.ones(1), np.array([semantic]), np.full(1, np.nan), len(ids)
+                )
+
+        kept, log_geo, semantics, maha = [], [], [], []
+        for j, semantic, residual, H_x, H_l, pose_part in plausible:
+            sigma_xl, sigma_ll = self._joint(prediction, j, joints)
+            cross = H_x @ sigma_xl @ H_l.T
+            HSH = pose_part + cross + cross.T + H_l @ sigma_ll @ H_l.T
             R = 0.5 * (HSH + HSH.T) + m.covariance
             d2 = assoc.mahalanobis_squared(residual, R)
             if d2 > gate:
@@ -162,24 +190,16 @@ class CandidateScorer:
             kept.append(j)
             maha.append(d2)
             log_geo.append(assoc.gaussian_log_density(residual, R))
-            semantic.append(
-                assoc.semantic_likelihood(
-                    self.confusion,
-                    m.detection.class_id,
-                    self.landmarks.landmarks[j].class_probabilities,
-                )
-            )
+            semantics.append(semantic)
         if not kept:
             return Candidates.none(len(ids))
-        weights = assoc.association_weights(np.array(log_geo), np.array(semantic))
+        weights = assoc.association_weights(np.array(log_geo), np.array(semantics))
         keep = weights >= self.config.min_weight
-        if not np.any(keep):
-            return Candidates.none(len(ids))
         weights = weights[keep] / weights[keep].sum()
         return Candidates(
             landmark_ids=np.array(kept)[keep],
             weights=weights,
-            semantic=np.array(semantic)[keep],
+            semantic=np.array(semantics)[keep],
             mahalanobis_sq=np.array(maha)[keep],
             searched=len(ids),
         )

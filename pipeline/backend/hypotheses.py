@@ -26,6 +26,7 @@ from pipeline.backend.geometry import (
 )
 from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.measurements import Measurement
+from pipeline.backend.movement import split_keys
 from pipeline.backend.solver import Isam2Solver
 
 NULL = -1  # landmark id and component index of the null hypothesis
@@ -67,31 +68,46 @@ class AssociationRecord:
 
 
 class EstimateCache:
-    """Per-key estimates fetched from iSAM2 once per evaluation round."""
+    """Estimates of poses and landmarks, fetched from iSAM2 in as few calls as possible."""
 
-    def __init__(self, solver: Isam2Solver, kinds: dict[int, LandmarkKind]):
+    def __init__(self, solver: Isam2Solver, landmark_is_pose: np.ndarray):
         self.solver = solver
-        self.kinds = kinds
-        self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        self._landmarks: dict[int, object] = {}
+        self.landmark_is_pose = landmark_is_pose
+        self._rows: dict[int, np.ndarray] = {}  # key -> [R (9), t (3)]
 
     def set_pose(self, index: int, pose) -> None:
-        self._poses[index] = (pose.rotation().matrix(), pose.translation())
+        """A pose not in iSAM2 yet (the prediction of a new keyframe)."""
+        self._rows[X(index)] = np.concatenate(
+            [pose.rotation().matrix().ravel(), pose.translation()]
+        )
+
+    def fetch(self, pose_indices, landmark_ids) -> None:
+        """Bring in every estimate not cached yet, in one iSAM2 call."""
+        wanted = {X(int(i)) for i in pose_indices} | {L(int(j)) for j in landmark_ids}
+        missing = sorted(wanted - self._rows.keys())
+        if not missing:
+            return
+        is_robot, index = split_keys(np.array(missing, dtype=np.uint64))
+        is_pose3 = is_robot.copy()
+        is_pose3[~is_robot] = self.landmark_is_pose[index[~is_robot]]
+        for key, row in zip(missing, self.solver.flat_estimates(missing, is_pose3), strict=True):
+            self._rows[key] = row
+
+    def rows(self, keys) -> np.ndarray:
+        return np.stack([self._rows[k] for k in keys])
 
     def pose(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        if index not in self._poses:
-            p = self.solver.pose(X(index))
-            self._poses[index] = (p.rotation().matrix(), p.translation())
-        return self._poses[index]
+        self.fetch([index], [])
+        row = self._rows[X(index)]
+        return row[:9].reshape(3, 3), row[9:]
 
     def landmark(self, landmark_id: int):
-        if landmark_id not in self._landmarks:
-            if self.kinds[landmark_id] is LandmarkKind.POSE:
-                p = self.solver.pose(L(landmark_id))
-                self._landmarks[landmark_id] = (p.rotation().matrix(), p.translation())
-            else:
-                self._landmarks[landmark_id] = self.solver.point(L(landmark_id))
-        return self._landmarks[landmark_id]
+        """(R, t) of a pose landmark, or the position of a point."""
+        self.fetch([], [landmark_id])
+        row = self._rows[L(landmark_id)]
+        if self.landmark_is_pose[landmark_id]:
+            return row[:9].reshape(3, 3), row[9:]
+        return row[9:]
 
 
 def component_mahalanobis(
@@ -100,6 +116,9 @@ def component_mahalanobis(
     """|h(x, l_k) - z|^2 in Gamma's metric, for every component of every record, computed in
     one vectorised pass per kind of landmark."""
     out: list[np.ndarray] = [np.empty(len(r.landmark_ids)) for r in records]
+    estimates.fetch(
+        {r.measurement.pose_index for r in records}, {j for r in records for j in r.landmark_ids}
+    )
     for kind in LandmarkKind:
         pairs = [
             (i, k)
@@ -109,24 +128,23 @@ def component_mahalanobis(
         ]
         if not pairs:
             continue
-        rec = [records[i] for i, _ in pairs]
-        poses = [estimates.pose(r.measurement.pose_index) for r in rec]
-        R_x = np.stack([p[0] for p in poses])
-        t_x = np.stack([p[1] for p in poses])
-        lms = [estimates.landmark(records[i].landmark_ids[k]) for i, k in pairs]
+        rec = [records[i].measurement for i, _ in pairs]
+        pose = estimates.rows([X(m.pose_index) for m in rec])
+        landmark = estimates.rows([L(records[i].landmark_ids[k]) for i, k in pairs])
+        R_x, t_x = pose[:, :9].reshape(-1, 3, 3), pose[:, 9:]
         if kind is LandmarkKind.POSE:
             residual = pose_residual_batch(
                 R_x,
                 t_x,
-                np.stack([lm[0] for lm in lms]),
-                np.stack([lm[1] for lm in lms]),
-                np.stack([r.measurement.relative_rotation for r in rec]),
-                np.stack([r.measurement.relative_translation for r in rec]),
+                landmark[:, :9].reshape(-1, 3, 3),
+                landmark[:, 9:],
+                np.stack([m.relative_rotation for m in rec]),
+                np.stack([m.relative_translation for m in rec]),
             )
         else:
-            z_pred = predict_point_batch(R_x, t_x, np.stack(lms))
-            residual = point_residual(z_pred, np.stack([r.measurement.vector for r in rec]))
-        information = np.stack([r.measurement.information for r in rec])
+            z_pred = predict_point_batch(R_x, t_x, landmark[:, 9:])
+            residual = point_residual(z_pred, np.stack([m.vector for m in rec]))
+        information = np.stack([m.information for m in rec])
         maha = np.einsum("ni,nij,nj->n", residual, information, residual)
         for (i, k), value in zip(pairs, maha, strict=True):
             out[i][k] = value

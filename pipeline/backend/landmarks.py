@@ -24,7 +24,8 @@ class Landmark:
     id: int
     kind: LandmarkKind
     class_probabilities: np.ndarray
-    observations: int = 0
+    # The marginal covariance when last computed: an upper bound while no factor is removed.
+    covariance_bound: np.ndarray | None = None
 
     @property
     def map_class(self) -> int:
@@ -100,6 +101,12 @@ class LandmarkMap:
 
     def __post_init__(self) -> None:
         self._index = {kind: SpatialHash(self.cell_size) for kind in LandmarkKind}
+        self._is_pose: list[bool] = []
+
+    @property
+    def is_pose(self) -> np.ndarray:
+        """Per landmark id: whether it is a 6-DoF landmark."""
+        return np.array(self._is_pose, dtype=bool)
 
     def __len__(self) -> int:
         return len(self.landmarks)
@@ -111,6 +118,7 @@ class LandmarkMap:
             class_probabilities=np.full(self.num_classes, 1.0 / self.num_classes),
         )
         self.landmarks[landmark.id] = landmark
+        self._is_pose.append(kind is LandmarkKind.POSE)
         self._index[kind].set(landmark.id, position)
         return landmark
 

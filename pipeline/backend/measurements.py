@@ -24,24 +24,13 @@ class Measurement:
     covariance: np.ndarray  # Gamma: 3x3 over (b, e, r), or 6x6 in Pose3 tangent order
     information: np.ndarray  # Gamma^-1
     log_normaliser: float  # 0.5 log det(2 pi Gamma)
+    vector: np.ndarray  # (bearing, elevation, range)
+    relative_rotation: np.ndarray | None = None  # of a pose measurement
+    relative_translation: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
         return self.covariance.shape[0]
-
-    @property
-    def vector(self) -> np.ndarray:
-        """(bearing, elevation, range) of a point measurement."""
-        d = self.detection
-        return np.array([d.bearing, d.elevation, d.range])
-
-    @property
-    def relative_rotation(self) -> np.ndarray:
-        return rotation_from_quaternion(self.detection.relative_pose.rotation)
-
-    @property
-    def relative_translation(self) -> np.ndarray:
-        return np.asarray(self.detection.relative_pose.translation, dtype=float)
 
     @property
     def body_point(self) -> np.ndarray:
@@ -77,6 +66,7 @@ def make_measurement(
         kind = LandmarkKind.POINT
         covariance = np.reshape(detection.covariance, (3, 3))
     covariance = 0.5 * (covariance + covariance.T)
+    relative = detection.relative_pose if kind is LandmarkKind.POSE else None
     return Measurement(
         pose_index=pose_index,
         detection_index=detection_index,
@@ -85,4 +75,7 @@ def make_measurement(
         covariance=covariance,
         information=np.linalg.inv(covariance),
         log_normaliser=gaussian_log_normaliser(covariance),
+        vector=np.array([detection.bearing, detection.elevation, detection.range]),
+        relative_rotation=rotation_from_quaternion(relative.rotation) if relative else None,
+        relative_translation=np.asarray(relative.translation, float) if relative else None,
     )

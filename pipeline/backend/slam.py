@@ -114,14 +114,17 @@ class Backend:
         ]
         self.records.extend(records)
         self.num_poses += 1
-        moved = self.context.after_update(self.solver.update())
-        changed = self.method.refine(moved)
+        marked = self.solver.update()
+        changed = 0
+        if self.method.uses_candidates:  # known association needs no map search or revisits
+            changed = self.method.refine(self.context.after_update(marked))
         self.switches += changed
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
         return KeyframeReport(prediction.pose_index, records, candidates, changed, seconds)
 
     def result(self) -> BackendResult:
+        self.method.finish()
         values = self.solver.estimate()
         poses = [values.atPose3(X(i)) for i in range(self.num_poses)]
         ids = sorted(self.landmarks.landmarks)

@@ -69,6 +69,19 @@ class Isam2Solver:
     def estimate(self) -> gtsam.Values:
         return self.isam.calculateEstimate()
 
+    def flat_estimates(self, keys: list[int], is_pose3: np.ndarray) -> np.ndarray:
+        """Estimates of `keys` (sorted, unique) in one call, as rows [R (9, row-major), t (3)];
+        a point's rotation part is zero. `is_pose3[i]` tells a Pose3 from a Point3."""
+        out = np.zeros((len(keys), 12))
+        if not keys:
+            return out
+        values = self.isam.calculateEstimate(keys)
+        if np.any(is_pose3):
+            out[is_pose3] = gtsam.utilities.extractPose3(values)
+        if not np.all(is_pose3):
+            out[~is_pose3, 9:] = gtsam.utilities.extractPoint3(values)
+        return out
+
     def marginal_covariance(self, key: int) -> np.ndarray:
         return self.isam.marginalCovariance(key)
 

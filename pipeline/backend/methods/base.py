@@ -6,7 +6,6 @@ from abc import ABC, abstractmethod
 from collections import defaultdict
 from dataclasses import dataclass, field
 
-import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
@@ -15,6 +14,7 @@ from pipeline.backend.candidates import Candidates, PosePrediction
 from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
 from pipeline.backend.landmarks import LandmarkMap
 from pipeline.backend.measurements import Measurement
+from pipeline.backend.movement import MovementTracker
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 
@@ -28,7 +28,10 @@ class BackendContext:
     confusion: np.ndarray
     config: Config
     prediction: PosePrediction | None = None
-    _last_moved: dict[int, np.ndarray] = field(default_factory=dict)
+    movement: MovementTracker = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.movement = MovementTracker(self.config.isam2.relinearize_threshold)
 
     def create_landmark(self, m: Measurement) -> int:
         """A new landmark initialised from the detection, with its factor and class evidence."""
@@ -41,6 +44,15 @@ class BackendContext:
 
     def add_factor(self, m: Measurement, landmark_id: int, information_scale: float = 1.0) -> int:
         return self.solver.add(m.factor(X(m.pose_index), L(landmark_id), information_scale))
+
+    def remove_factors(self, record: AssociationRecord) -> None:
+        """Take a record's factors out of the graph; its landmarks lose information, so their
+        cached covariance bounds no longer hold."""
+        for handle in record.handles:
+            self.solver.remove(handle)
+        record.handles = []
+        for j in record.landmark_ids:
+            self.landmarks.landmarks[j].covariance_bound = None
 
     def observe_classes(
         self, m: Measurement, landmark_ids: list[int], weights: np.ndarray, null_weight: float = 0.0
@@ -59,38 +71,21 @@ class BackendContext:
 
     def estimates(self, prediction: PosePrediction | None = None) -> EstimateCache:
         """Current estimates; with `prediction`, its pose (not in iSAM2 yet) included."""
-        cache = EstimateCache(
-            self.solver, {j: lm.kind for j, lm in self.landmarks.landmarks.items()}
-        )
+        cache = EstimateCache(self.solver, self.landmarks.is_pose)
         if prediction is not None:
             cache.set_pose(prediction.pose_index, prediction.pose)
         return cache
 
     def after_update(self, marked: set[int]) -> set[int]:
         """The variables among iSAM2's `marked` ones whose estimate moved by more than the
-        relinearisation threshold since they last moved (new variables included). Moved
+        relinearisation threshold since they last moved (new variables included); moved
         landmarks are moved in the spatial index too.
 
         A variable that iSAM2 did not mark kept its linearisation point, so the factors on it,
         and the component a max-mixture would choose, are as they were."""
-        threshold = self.config.isam2.relinearize_threshold
-        estimates = self.estimates()
-        moved = set()
-        for key in marked:
-            symbol = gtsam.Symbol(key)
-            index = symbol.index()
-            is_pose = chr(symbol.chr()) == "x"
-            value = estimates.pose(index) if is_pose else estimates.landmark(index)
-            flat = (
-                np.concatenate([value[0].ravel(), value[1]]) if isinstance(value, tuple) else value
-            )
-            last = self._last_moved.get(key)
-            if last is not None and np.max(np.abs(flat - last)) <= threshold:
-                continue
-            self._last_moved[key] = flat
-            moved.add(key)
-            if not is_pose:
-                self.landmarks.move(index, value[1] if isinstance(value, tuple) else value)
+        moved, positions = self.movement.moved(self.solver, marked, self.landmarks.is_pose)
+        for landmark_id, position in positions.items():
+            self.landmarks.move(landmark_id, position)
         return moved
 
 
@@ -112,6 +107,9 @@ class AssociationMethod(ABC):
         """After an iSAM2 update that moved `moved`: revisit associations; returns how many
         changed."""
         return 0
+
+    def finish(self) -> None:  # noqa: B027 - most methods have nothing to settle
+        """Settle the final associations once every keyframe is in."""
 
     def single(self, m: Measurement, landmark_id: int, weight: float = 1.0) -> AssociationRecord:
         """A plain association: one factor to one landmark."""

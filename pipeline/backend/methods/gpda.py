@@ -32,8 +32,7 @@ class GaussianPDA(MixtureMethod):
         return self.track(record) if len(ids) > 1 else record
 
     def _put_factors(self, record: AssociationRecord, weights: np.ndarray) -> None:
-        for handle in record.handles:
-            self.context.solver.remove(handle)
+        self.context.remove_factors(record)
         record.handles = [
             self.context.add_factor(record.measurement, j, float(w))
             for j, w in zip(record.landmark_ids, weights, strict=True)

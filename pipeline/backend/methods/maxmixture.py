@@ -10,6 +10,7 @@ See `pipeline/backend/hypotheses.py` for how the component is kept current.
 from __future__ import annotations
 
 import numpy as np
+from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import with_null_hypothesis
 from pipeline.backend.candidates import Candidates
@@ -17,6 +18,7 @@ from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahal
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import BackendContext, MixtureMethod
 from pipeline.backend.mixture import component_nll, null_component_nll
+from pipeline.backend.mixture_factor import MaxMixtureFactor, component
 
 
 class MaxMixture(MixtureMethod):
@@ -28,6 +30,8 @@ class MaxMixture(MixtureMethod):
         self.null_weight = a.null_weight if null_hypothesis else 0.0
         self.null_sigma = a.null_sigma
         self.name = "mm-nh" if null_hypothesis else "mm"
+        self.in_factor = self.config.mixture.selection == "custom-factor"
+        self._mixture_factors: list[tuple[AssociationRecord, MaxMixtureFactor]] = []
 
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         if len(candidates) == 0:
@@ -42,11 +46,44 @@ class MaxMixture(MixtureMethod):
             record.active = 0
             record.handles = [self.context.add_factor(m, ids[0])]
             return record
-        # The first choice uses the predicted pose; `refine` revisits it after the update.
-        record.active = self._best([record], self.context.estimates(self.context.prediction))[0]
+        if self.in_factor:
+            return self._custom_factor(record)
+        # The first choice is the most probable association, the pose and landmarks
+        # marginalised out (the weights); measured at the predicted pose alone, a detection
+        # after a large odometry error would look like an outlier to every landmark.
+        best = int(np.argmax(weights))
+        record.active = NULL if self.null_weight > weights[best] else best
         if record.active != NULL:
             record.handles = [self.context.add_factor(m, ids[record.active])]
         return self.track(record)
+
+    def _custom_factor(self, record: AssociationRecord) -> AssociationRecord:
+        """The mixture as one CustomFactor choosing at every linearisation (no `refine`)."""
+        m = record.measurement
+        components = [
+            component(m.factor(X(m.pose_index), L(j)), float(w))
+            for j, w in zip(record.landmark_ids, record.weights, strict=True)
+        ]
+        mixture = MaxMixtureFactor(
+            X(m.pose_index), components, m.dim, self.null_weight, self.null_sigma
+        )
+        record.handles = [self.context.solver.add(mixture.factor())]
+        record.active = int(np.argmax(record.weights))
+        self._mixture_factors.append((record, mixture))
+        return record
+
+    def finish(self) -> None:
+        """With CustomFactors, each record's final component is the one chosen at the end."""
+        if not self._mixture_factors:
+            return
+        values = self.context.solver.estimate()
+        for record, mixture in self._mixture_factors:
+            costs = mixture.nll(values)
+            best = int(np.argmin(costs))
+            winner = NULL if best == len(record.landmark_ids) else best
+            if winner != record.active:
+                record.switches += 1
+            record.active = winner
 
     def _best(self, records: list[AssociationRecord], estimates) -> list[int]:
         """Index of each record's winning component (NULL for the null hypothesis)."""
@@ -66,6 +103,8 @@ class MaxMixture(MixtureMethod):
 
     def refine(self, moved: set[int]) -> int:
         """Swap in the winning component wherever it changed, until none changes."""
+        if self.in_factor:
+            return 0
         solver = self.context.solver
         changed = 0
         for _ in range(self.config.mixture.max_switch_rounds):
@@ -78,9 +117,7 @@ class MaxMixture(MixtureMethod):
             ):
                 if winner == record.active:
                     continue
-                for handle in record.handles:
-                    solver.remove(handle)
-                record.handles = []
+                self.context.remove_factors(record)
                 if winner != NULL:
                     record.handles = [
                         self.context.add_factor(record.measurement, record.landmark_ids[winner])

@@ -1,0 +1,461 @@
+"""indoor-tags: the paper's indoor AprilTag run, simulated on an office floor.
+
+The world: a grid of corridors (`floor`), a robot route through them with loops (`route`), and
+tags on the corridor walls (`tags`). It is built from the config's `world_seed` alone, so every
+`--seed` sees the same world and truth; the seed draws the odometry noise, the missed
+detections, the measurement noise and the reported classes.
+
+A tag's frame: x along its outward normal (into the corridor, towards a viewer), z up, y to
+the left of x. A detection gives the tag centre as bearing/elevation/range and the tag's pose
+in the body frame (`relative_pose`), each drawn with the noise its covariance declares; the two
+are independent draws (a back-end uses one or the other).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from data_tools.scenarios import config as cfg
+from data_tools.scenarios.common import (
+    SimulatedRun,
+    SimulationOptions,
+    floats,
+    metadata_for,
+    source_text,
+)
+from data_tools.scenarios.geometry import (
+    bearing_elevation_range,
+    inverse,
+    pose_from_rotation_translation,
+    relative_poses,
+    rotation_to_quaternion,
+    se3_exp,
+    yaw_rotation,
+)
+from data_tools.scenarios.noise import (
+    OdometryNoiseConfig,
+    check_odometry_config,
+    confusion_matrix,
+    corrupt_odometry,
+    odometry_covariances,
+    random_streams,
+    sample_reported_classes,
+)
+from pipeline.errors import InputError
+from pipeline.log import Detection, GroundTruthLandmark, RelativePose
+
+logger = logging.getLogger(__name__)
+
+NAME = "indoor-tags"
+
+# Points tested along each line of sight, stopping short of the tag on the wall itself.
+LINE_OF_SIGHT_SAMPLES = np.linspace(0.0, 0.97, 48)
+DENSE_STEP_M = 0.05  # resolution of the route before smoothing
+
+
+@dataclass(frozen=True)
+class FloorConfig:
+    corridor_x_m: tuple[float, ...]
+    corridor_y_m: tuple[float, ...]
+    corridor_width_m: float
+
+
+@dataclass(frozen=True)
+class RouteConfig:
+    length_m: float
+    speed_mps: float
+    keyframe_period_s: float
+    corner_smoothing_m: float
+    wander_amplitude_m: float
+    wander_wavelength_m: float
+
+
+@dataclass(frozen=True)
+class TagConfig:
+    count: int
+    min_spacing_m: float
+    height_min_m: float
+    height_max_m: float
+    junction_clearance_m: float
+
+
+@dataclass(frozen=True)
+class TagCameraConfig:
+    horizontal_fov_deg: float
+    vertical_fov_deg: float
+    max_range_m: float
+    max_incidence_deg: float
+    detection_probability: float
+
+
+@dataclass(frozen=True)
+class TagMeasurementConfig:
+    sigma_bearing_rad: float
+    sigma_elevation_rad: float
+    sigma_range_m: float
+    relative_pose_sigma_rotation_rad: float
+    relative_pose_sigma_translation_m: float
+
+
+@dataclass(frozen=True)
+class IndoorTagsConfig:
+    world_seed: int
+    num_classes: int
+    floor: FloorConfig
+    route: RouteConfig
+    tags: TagConfig
+    camera: TagCameraConfig
+    measurement: TagMeasurementConfig
+    odometry: OdometryNoiseConfig
+
+
+def load_config(path: Path | None = None) -> IndoorTagsConfig:
+    config = cfg.load(IndoorTagsConfig, NAME, path)
+    _check(config, path or cfg.default_config_path(NAME))
+    return config
+
+
+def _check(c: IndoorTagsConfig, path: Path) -> None:
+    req = cfg.require
+    req(c.world_seed >= 0, path, "world_seed must be >= 0")
+    req(c.num_classes >= 1, path, "num_classes must be >= 1")
+    for axis in (c.floor.corridor_x_m, c.floor.corridor_y_m):
+        req(len(axis) >= 2, path, "floor needs at least two corridors each way")
+        req(bool(np.all(np.diff(axis) > 0)), path, "floor corridors must be in increasing order")
+        req(
+            bool(
+                np.all(np.diff(axis) > c.floor.corridor_width_m + 2 * c.tags.junction_clearance_m)
+            ),
+            path,
+            "floor corridors are closer than their width",
+        )
+    req(c.floor.corridor_width_m > 0, path, "floor.corridor_width_m must be positive")
+    r = c.route
+    req(r.length_m > 0 and r.speed_mps > 0 and r.keyframe_period_s > 0, path, "route values > 0")
+    req(r.corner_smoothing_m >= 0 and r.wander_wavelength_m > 0, path, "route shape values > 0")
+    req(
+        r.wander_amplitude_m >= 0 and r.wander_amplitude_m < c.floor.corridor_width_m / 2,
+        path,
+        "route.wander_amplitude_m must keep the robot inside its corridor",
+    )
+    t = c.tags
+    req(t.count >= 1 and t.min_spacing_m >= 0, path, "tags.count >= 1, min_spacing_m >= 0")
+    req(t.height_min_m <= t.height_max_m, path, "tags.height_min_m must be <= height_max_m")
+    cam = c.camera
+    req(0 < cam.horizontal_fov_deg < 180 and 0 < cam.vertical_fov_deg < 180, path, "bad fov")
+    req(cam.max_range_m > 0 and 0 < cam.max_incidence_deg <= 90, path, "bad range or incidence")
+    req(0 <= cam.detection_probability <= 1, path, "camera.detection_probability in 0..1")
+    m = c.measurement
+    sigmas = (
+        m.sigma_bearing_rad,
+        m.sigma_elevation_rad,
+        m.sigma_range_m,
+        m.relative_pose_sigma_rotation_rad,
+        m.relative_pose_sigma_translation_m,
+    )
+    req(all(s > 0 for s in sigmas), path, "measurement sigmas must be positive")
+    check_odometry_config(c.odometry, path)
+
+
+# --- the world ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Corridor:
+    """One corridor between two neighbouring junctions: start, unit direction, length."""
+
+    start: np.ndarray
+    direction: np.ndarray
+    length: float
+
+
+@dataclass(frozen=True)
+class IndoorWorld:
+    """Everything in floor coordinates (the plan's own frame, not yet the first pose's)."""
+
+    corridors: list[Corridor]
+    free_space: np.ndarray  # (K, 4) rectangles [x_min, y_min, x_max, y_max]
+    times_ns: np.ndarray  # (N,)
+    poses: np.ndarray  # (N, 4, 4) body poses on the floor
+    tag_poses: np.ndarray  # (M, 4, 4) tag poses on the floor, row m = tag id m
+
+
+def corridors_of(floor: FloorConfig) -> list[Corridor]:
+    xs, ys = floor.corridor_x_m, floor.corridor_y_m
+    out = []
+    for y in ys:
+        for x0, x1 in itertools.pairwise(xs):
+            out.append(Corridor(np.array([x0, y]), np.array([1.0, 0.0]), x1 - x0))
+    for x in xs:
+        for y0, y1 in itertools.pairwise(ys):
+            out.append(Corridor(np.array([x, y0]), np.array([0.0, 1.0]), y1 - y0))
+    return out
+
+
+def free_space_of(corridors: list[Corridor], width: float) -> np.ndarray:
+    """Each corridor's floor, junctions at both ends included, as an axis-aligned rectangle."""
+    half = width / 2
+    rects = []
+    for c in corridors:
+        end = c.start + c.direction * c.length
+        lo, hi = np.minimum(c.start, end) - half, np.maximum(c.start, end) + half
+        rects.append([lo[0], lo[1], hi[0], hi[1]])
+    return np.array(rects)
+
+
+def junction_route(floor: FloorConfig, length: float, rng: np.random.Generator) -> np.ndarray:
+    """Junctions visited, (K, 2), until the route is at least `length` long.
+
+    At each junction the robot takes one of the corridors it has driven least (never straight
+    back), so all corridors are covered and then driven again: the loops of the run.
+    """
+    xs, ys = floor.corridor_x_m, floor.corridor_y_m
+    node, previous = (0, 0), None
+    driven: dict[frozenset, int] = {}
+    route = [node]
+    total = 0.0
+    while total < length:
+        i, j = node
+        neighbours = [
+            (a, b)
+            for a, b in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))
+            if 0 <= a < len(xs) and 0 <= b < len(ys) and (a, b) != previous
+        ]
+        counts = [driven.get(frozenset((node, n)), 0) for n in neighbours]
+        least = [n for n, c in zip(neighbours, counts, strict=True) if c == min(counts)]
+        step = least[int(rng.integers(len(least)))]
+        driven[frozenset((node, step))] = driven.get(frozenset((node, step)), 0) + 1
+        total += abs(xs[step[0]] - xs[i]) + abs(ys[step[1]] - ys[j])
+        previous, node = node, step
+        route.append(node)
+    return np.array([[xs[i], ys[j]] for i, j in route])
+
+
+def resample_polyline(vertices: np.ndarray, step: float) -> np.ndarray:
+    """Points every `step` metres along a polyline."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(vertices, axis=0), axis=1))])
+    grid = np.arange(0.0, s[-1], step)
+    return np.stack([np.interp(grid, s, vertices[:, k]) for k in range(vertices.shape[1])], -1)
+
+
+def smooth_path(points: np.ndarray, window: int) -> np.ndarray:
+    """Moving average over `window` points: rounds the corners as a driven robot would."""
+    if window <= 1:
+        return points
+    kernel = np.ones(window) / window
+    padded = np.pad(points, ((window // 2, window - 1 - window // 2), (0, 0)), mode="edge")
+    return np.stack([np.convolve(padded[:, k], kernel, mode="valid") for k in range(2)], -1)
+
+
+def arc_length(points: np.ndarray) -> np.ndarray:
+    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
+
+
+def drive(vertices: np.ndarray, route: RouteConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Keyframe times (ns) and planar body poses (N, 4, 4) along the junction route."""
+    dense = resample_polyline(vertices, DENSE_STEP_M)
+    dense = smooth_path(dense, round(route.corner_smoothing_m / DENSE_STEP_M))
+    tangent = np.gradient(dense, axis=0)
+    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
+    s = arc_length(dense)
+    weave = route.wander_amplitude_m * np.sin(2 * np.pi * s / route.wander_wavelength_m)
+    dense = dense + weave[:, None] * np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+    s = arc_length(dense)
+    heading = np.unwrap(np.arctan2(*np.gradient(dense, axis=0)[:, ::-1].T))
+    step = route.speed_mps * route.keyframe_period_s
+    if s[-1] < route.length_m:
+        raise InputError(f"{NAME} config: the route is shorter than route.length_m")
+    count = math.floor(route.length_m / step + 1e-9) + 1
+    s_key = np.arange(count) * step
+    xy = np.stack([np.interp(s_key, s, dense[:, 0]), np.interp(s_key, s, dense[:, 1])], -1)
+    yaw = np.interp(s_key, s, heading)
+    translation = np.concatenate([xy, np.zeros((count, 1))], axis=1)
+    poses = pose_from_rotation_translation(yaw_rotation(yaw), translation)
+    times_ns = np.round(np.arange(count) * route.keyframe_period_s * 1e9).astype(np.int64)
+    return times_ns, poses
+
+
+def place_tags(
+    corridors: list[Corridor], width: float, tags: TagConfig, rng: np.random.Generator
+) -> np.ndarray:
+    """(M, 4, 4) tag poses on the corridor walls, facing into the corridor; row m is tag m."""
+    margin = width / 2 + tags.junction_clearance_m
+    # Every usable stretch of wall: (corridor, side), its length.
+    walls = [(c, side) for c in corridors for side in (1.0, -1.0)]
+    usable = np.array([c.length - 2 * margin for c, _ in walls])
+    total = usable.sum()
+    free = total - tags.count * tags.min_spacing_m
+    if free <= 0:
+        raise InputError(f"{NAME} config: walls too short for tags.count at tags.min_spacing_m")
+    # Sorted uniform draws stretched by the spacing: uniform positions with a minimum gap.
+    along = np.sort(rng.uniform(0.0, free, tags.count)) + np.arange(tags.count) * tags.min_spacing_m
+    ends = np.cumsum(usable)
+    wall_index = np.minimum(np.searchsorted(ends, along, side="right"), len(walls) - 1)
+    offset = along - (ends[wall_index] - usable[wall_index])
+    heights = rng.uniform(tags.height_min_m, tags.height_max_m, tags.count)
+    poses = np.zeros((tags.count, 4, 4))
+    for k, (w, o, h) in enumerate(zip(wall_index, offset, heights, strict=True)):
+        corridor, side = walls[w]
+        left = np.array([-corridor.direction[1], corridor.direction[0]])
+        xy = corridor.start + corridor.direction * (margin + o) + side * (width / 2) * left
+        normal = np.array([*(-side * left), 0.0])  # from the wall into the corridor
+        up = np.array([0.0, 0.0, 1.0])
+        rotation = np.stack([normal, np.cross(up, normal), up], axis=1)
+        poses[k] = pose_from_rotation_translation(rotation, np.array([*xy, h]))
+    # Tag ids in random order along the walls, as stuck up by hand: id mod C has no pattern.
+    return poses[rng.permutation(tags.count)]
+
+
+def build_world(config: IndoorTagsConfig) -> IndoorWorld:
+    rng = np.random.default_rng(config.world_seed)
+    corridors = corridors_of(config.floor)
+    # Longer than asked: rounding the corners shortens the route.
+    vertices = junction_route(config.floor, 1.1 * config.route.length_m + 50.0, rng)
+    times_ns, poses = drive(vertices, config.route)
+    tag_poses = place_tags(corridors, config.floor.corridor_width_m, config.tags, rng)
+    free_space = free_space_of(corridors, config.floor.corridor_width_m)
+    if not in_free_space(poses[:, :2, 3], free_space).all():
+        raise InputError(
+            f"{NAME} config: the route leaves the corridors; lower route.corner_smoothing_m or "
+            "route.wander_amplitude_m"
+        )
+    return IndoorWorld(
+        corridors=corridors,
+        free_space=free_space,
+        times_ns=times_ns,
+        poses=poses,
+        tag_poses=tag_poses,
+    )
+
+
+# --- what the camera sees -------------------------------------------------------------------
+
+
+def in_free_space(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
+    """(..., 2) points inside any of the rectangles."""
+    p = points[..., None, :]
+    inside = (
+        (p[..., 0] >= rectangles[:, 0])
+        & (p[..., 0] <= rectangles[:, 2])
+        & (p[..., 1] >= rectangles[:, 1])
+        & (p[..., 1] <= rectangles[:, 3])
+    )
+    return inside.any(axis=-1)
+
+
+def visible_tags(world: IndoorWorld, camera: TagCameraConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(pose index, tag id) of every tag in view: range, field of view, facing, no wall between."""
+    positions = world.poses[:, :3, 3]
+    tags = world.tag_poses[:, :3, 3]
+    normals = world.tag_poses[:, :3, 0]
+    offset = tags[None, :, :] - positions[:, None, :]  # (N, M, 3), world frame
+    distance = np.linalg.norm(offset, axis=-1)
+    local = np.einsum("nji,nmj->nmi", world.poses[:, :3, :3], offset)  # body frame
+    ber = bearing_elevation_range(local)
+    facing = -np.einsum("nmi,mi->nm", offset, normals) / np.maximum(distance, 1e-9)
+    mask = (
+        (distance <= camera.max_range_m)
+        & (local[..., 0] > 0.0)
+        & (np.abs(ber[..., 0]) <= math.radians(camera.horizontal_fov_deg) / 2)
+        & (np.abs(ber[..., 1]) <= math.radians(camera.vertical_fov_deg) / 2)
+        & (facing >= math.cos(math.radians(camera.max_incidence_deg)))
+    )
+    pose_index, tag_id = np.nonzero(mask)
+    start, end = positions[pose_index, :2], tags[tag_id, :2]
+    samples = start[:, None, :] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (end - start)[:, None, :]
+    clear = in_free_space(samples, world.free_space).all(axis=1)
+    return pose_index[clear], tag_id[clear]
+
+
+# --- the run --------------------------------------------------------------------------------
+
+
+def class_names(num_classes: int) -> list[str]:
+    return [f"tag-id-mod-{num_classes}-is-{c}" for c in range(num_classes)]
+
+
+def simulate(
+    config: IndoorTagsConfig, options: SimulationOptions, config_path: Path | None = None
+) -> SimulatedRun:
+    world = build_world(config)
+    streams = random_streams(options.seed)
+    num_classes = options.num_classes
+    # Everything written is in the frame of the first body pose.
+    origin = inverse(world.poses[0])
+    poses = origin @ world.poses
+    tag_poses = origin @ world.tag_poses
+
+    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
+    odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
+
+    pose_index, tag_id = visible_tags(world, config.camera)
+    detected = streams["visibility"].random(len(pose_index)) < config.camera.detection_probability
+    pose_index, tag_id = pose_index[detected], tag_id[detected]
+
+    m = config.measurement
+    relative = inverse(poses[pose_index]) @ tag_poses[tag_id]  # true tag poses in body frames
+    point_sigmas = np.array([m.sigma_bearing_rad, m.sigma_elevation_rad, m.sigma_range_m])
+    pose_sigmas = np.array(
+        [m.relative_pose_sigma_rotation_rad] * 3 + [m.relative_pose_sigma_translation_m] * 3
+    )
+    rng = streams["measurement"]
+    point_noise = rng.standard_normal((len(tag_id), 3)) * point_sigmas
+    pose_noise = rng.standard_normal((len(tag_id), 6)) * pose_sigmas
+    measured = bearing_elevation_range(relative[:, :3, 3]) + point_noise
+    measured_pose = relative @ se3_exp(pose_noise)
+    measured_quaternion = rotation_to_quaternion(measured_pose[:, :3, :3])
+
+    true_class = tag_id % num_classes
+    confusion = confusion_matrix(num_classes, options.misclassification)
+    reported = sample_reported_classes(streams["classes"], true_class, confusion)
+
+    point_covariance = floats(np.diag(point_sigmas**2))
+    pose_covariance = floats(np.diag(pose_sigmas**2))
+    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
+    # Within a keyframe, detections go left to right as in the image (no hint of the truth).
+    for d in np.lexsort((-measured[:, 0], pose_index)):
+        detections[pose_index[d]].append(
+            Detection(
+                class_id=int(reported[d]),
+                score=1.0,
+                bearing=float(measured[d, 0]),
+                elevation=float(measured[d, 1]),
+                range=float(measured[d, 2]),
+                covariance=point_covariance,
+                source="apriltag",
+                relative_pose=RelativePose(
+                    translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
+                    rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
+                    covariance=pose_covariance,
+                ),
+                truth_landmark_id=int(tag_id[d]),
+            )
+        )
+    landmarks = [
+        GroundTruthLandmark(
+            id=k,
+            class_id=k % num_classes,
+            position=floats(tag_poses[k, :3, 3]),  # type: ignore[arg-type]
+        )
+        for k in range(len(tag_poses))
+    ]
+    return SimulatedRun(
+        times_ns=world.times_ns,
+        poses=poses,
+        odometry=odometry,
+        odometry_covariance=true if options.true_covariance else calibrated,
+        detections=detections,
+        landmarks=landmarks,
+        metadata=metadata_for(
+            num_classes,
+            confusion,
+            class_names(num_classes),
+            source_text(NAME, options, config_path),
+        ),
+    )

@@ -1,0 +1,557 @@
+"""kitti05-cars: the real KITTI odometry 05 path through simulated streets of parked cars.
+
+The path and timestamps are KITTI's own (every frame is a keyframe, ~10 Hz), converted to the
+contract's body frame: the left camera's origin with x forward, y left, z up. Cars are parked
+on both sides of each street the first time it is driven; a revisited street is not lined
+again, so a revisit sees the same cars (the real loop closures of the sequence). The world
+comes from the config's `world_seed`; `--seed` draws the detector and the noise.
+
+A detection is the car's centre as bearing/elevation/range: bearing and elevation from the box
+centre's pixel noise (through the camera model's Jacobian), range from stereo depth noise
+sigma_z = z^2 sigma_d / (f b) taken along the ray; the covariance written is the one the noise
+was drawn from, evaluated at the true geometry. Occlusion between cars is not modelled.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from data_tools.scenarios import config as cfg
+from data_tools.scenarios.common import (
+    SimulatedRun,
+    SimulationOptions,
+    floats,
+    metadata_for,
+    source_text,
+)
+from data_tools.scenarios.geometry import (
+    bearing_elevation_range,
+    orthonormalise,
+    relative_poses,
+    yaw_rotation,
+)
+from data_tools.scenarios.noise import (
+    OdometryNoiseConfig,
+    check_odometry_config,
+    confusion_matrix,
+    corrupt_odometry,
+    logistic,
+    odometry_covariances,
+    random_streams,
+    sample_reported_classes,
+)
+from pipeline.datasets.kitti import BODY_FROM_CAMERA, camera_poses_to_body, read_poses, read_times
+from pipeline.errors import InputError
+from pipeline.log import Detection, GroundTruthLandmark, StereoCalibration
+
+logger = logging.getLogger(__name__)
+
+NAME = "kitti05-cars"
+
+# Unit box corners (x along the car, y across, z up), scaled by each car's size.
+_BOX_CORNERS = np.array(
+    [[sx, sy, sz] for sx in (-0.5, 0.5) for sy in (-0.5, 0.5) for sz in (-0.5, 0.5)]
+)
+_NEAR_PLANE_M = 0.1  # box corners closer than this to the image plane are not projected
+
+
+@dataclass(frozen=True)
+class SequenceConfig:
+    data_dir: Path
+    camera_height_m: float
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    baseline_m: float
+
+
+@dataclass(frozen=True)
+class VehicleClass:
+    name: str
+    frequency: float
+    length_m: float
+    width_m: float
+    height_m: float
+
+
+@dataclass(frozen=True)
+class ParkingConfig:
+    path_step_m: float
+    revisit_radius_m: float
+    revisit_min_arc_m: float
+    right_offset_m: float
+    left_offset_m: float
+    offset_jitter_m: float
+    heading_jitter_deg: float
+    row_mean_cars: float
+    gap_min_m: float
+    gap_max_m: float
+    empty_mean_m: float
+    min_path_clearance_m: float
+    min_separation_m: float
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    max_range_m: float
+    min_depth_m: float
+    score_threshold: float
+    score_logit_near: float
+    score_logit_far: float
+    score_logit_sigma: float
+    false_alarms_per_frame: float
+    false_alarm_logit_mean: float
+    pixel_sigma_px: float
+    disparity_sigma_px: float
+
+
+@dataclass(frozen=True)
+class Kitti05CarsConfig:
+    world_seed: int
+    sequence: SequenceConfig
+    camera: CameraConfig
+    vehicles: tuple[VehicleClass, ...]
+    parking: ParkingConfig
+    detector: DetectorConfig
+    odometry: OdometryNoiseConfig
+
+    @property
+    def num_classes(self) -> int:
+        """One class per vehicle class by default."""
+        return len(self.vehicles)
+
+
+def load_config(path: Path | None = None) -> Kitti05CarsConfig:
+    config = cfg.load(Kitti05CarsConfig, NAME, path)
+    _check(config, path or cfg.default_config_path(NAME))
+    return config
+
+
+def _check(c: Kitti05CarsConfig, path: Path) -> None:
+    req = cfg.require
+    req(c.world_seed >= 0, path, "world_seed must be >= 0")
+    req(c.sequence.camera_height_m > 0, path, "sequence.camera_height_m must be positive")
+    cam = c.camera
+    req(cam.width > 0 and cam.height > 0, path, "camera image size must be positive")
+    req(cam.fx > 0 and cam.fy > 0 and cam.baseline_m > 0, path, "camera fx, fy, baseline > 0")
+    req(len(c.vehicles) >= 1, path, "at least one vehicle class is needed")
+    for v in c.vehicles:
+        req(v.frequency > 0, path, f"vehicle {v.name!r}: frequency must be positive")
+        req(min(v.length_m, v.width_m, v.height_m) > 0, path, f"vehicle {v.name!r}: bad size")
+    p = c.parking
+    req(p.path_step_m > 0 and p.revisit_radius_m > 0, path, "parking step and radius > 0")
+    req(p.row_mean_cars >= 1, path, "parking.row_mean_cars must be >= 1")
+    req(0 <= p.gap_min_m <= p.gap_max_m, path, "parking gaps: 0 <= gap_min_m <= gap_max_m")
+    req(p.empty_mean_m > 0 and p.offset_jitter_m >= 0, path, "parking.empty_mean_m > 0")
+    d = c.detector
+    req(0 < d.min_depth_m < d.max_range_m, path, "detector: 0 < min_depth_m < max_range_m")
+    req(0 < d.score_threshold < 1, path, "detector.score_threshold must be within (0, 1)")
+    req(d.score_logit_sigma > 0, path, "detector.score_logit_sigma must be positive")
+    req(d.false_alarms_per_frame >= 0, path, "detector.false_alarms_per_frame must be >= 0")
+    req(d.pixel_sigma_px > 0 and d.disparity_sigma_px > 0, path, "detector sigmas must be > 0")
+    check_odometry_config(c.odometry, path)
+
+
+# --- the world ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Street:
+    """The driven path resampled by arc length: where the kerbs are."""
+
+    s: np.ndarray  # (S,) arc length
+    points: np.ndarray  # (S, 3)
+    heading: np.ndarray  # (S,) yaw of the direction of travel
+    first_visit: np.ndarray  # (S,) bool: no earlier pass nearby
+
+
+@dataclass(frozen=True)
+class Kitti05World:
+    times_ns: np.ndarray  # (N,)
+    poses: np.ndarray  # (N, 4, 4) body poses, pose 0 at identity
+    car_poses: np.ndarray  # (M, 4, 4) box centre and heading
+    car_types: np.ndarray  # (M,) index into config.vehicles
+    car_sizes: np.ndarray  # (M, 3) length, width, height
+
+
+def read_sequence(sequence: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Times (ns) and body poses of the KITTI sequence (poses.txt, times.txt)."""
+    camera_poses = read_poses(sequence.data_dir / "poses.txt")
+    times = read_times(sequence.data_dir / "times.txt")
+    if len(times) != len(camera_poses):
+        raise InputError(
+            f"sequence {sequence.data_dir}: {len(camera_poses)} poses but {len(times)} times"
+        )
+    times_ns = np.round((times - times[0]) * 1e9).astype(np.int64)
+    # KITTI's rotations are printed to 7 digits: make them exact, as the truth written will be.
+    return times_ns, orthonormalise(camera_poses_to_body(camera_poses))
+
+
+def street_of(positions: np.ndarray, parking: ParkingConfig) -> Street:
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(positions, axis=0), axis=1) > 1e-6])
+    positions = positions[keep]  # standing still adds nothing to a street
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    s = np.arange(0.0, arc[-1], parking.path_step_m)
+    points = np.stack([np.interp(s, arc, positions[:, k]) for k in range(3)], axis=-1)
+    direction = np.gradient(points[:, :2], axis=0)
+    heading = np.arctan2(direction[:, 1], direction[:, 0])
+    pairs = cKDTree(points[:, :2]).query_pairs(parking.revisit_radius_m, output_type="ndarray")
+    first_visit = np.ones(len(s), dtype=bool)
+    if len(pairs):
+        i, j = pairs.min(axis=1), pairs.max(axis=1)
+        revisit = s[j] - s[i] > parking.revisit_min_arc_m
+        first_visit[j[revisit]] = False
+    return Street(s=s, points=points, heading=heading, first_visit=first_visit)
+
+
+def kerb_rows(
+    length: float,
+    parking: ParkingConfig,
+    vehicles: tuple[VehicleClass, ...],
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Arc positions and vehicle types of cars along one kerb: rows split by empty stretches."""
+    lengths = np.array([v.length_m for v in vehicles])
+    shares = np.array([v.frequency for v in vehicles])
+    shares = shares / shares.sum()
+    centres, types = [], []
+    s = rng.exponential(parking.empty_mean_m)
+    while s < length:
+        for _ in range(rng.geometric(1.0 / parking.row_mean_cars)):
+            kind = int(rng.choice(len(vehicles), p=shares))
+            centres.append(s + lengths[kind] / 2)
+            types.append(kind)
+            s += lengths[kind] + rng.uniform(parking.gap_min_m, parking.gap_max_m)
+        s += rng.exponential(parking.empty_mean_m)
+    centres_a, types_a = np.array(centres), np.array(types, dtype=int)
+    inside = centres_a < length
+    return centres_a[inside], types_a[inside]
+
+
+def park_cars(
+    street: Street,
+    camera_height: float,
+    parking: ParkingConfig,
+    vehicles: tuple[VehicleClass, ...],
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(poses (M, 4, 4), types (M,), sizes (M, 3)) of the parked cars."""
+    sizes_by_type = np.array([[v.length_m, v.width_m, v.height_m] for v in vehicles])
+    poses, types = [], []
+    for side, offset in ((-1.0, parking.right_offset_m), (1.0, parking.left_offset_m)):
+        centres, kinds = kerb_rows(street.s[-1], parking, vehicles, rng)
+        index = np.minimum(np.round(centres / parking.path_step_m).astype(int), len(street.s) - 1)
+        lateral = offset + parking.offset_jitter_m * rng.standard_normal(len(centres))
+        yaw = street.heading[index] + np.radians(parking.heading_jitter_deg) * rng.standard_normal(
+            len(centres)
+        )
+        kinds, index, lateral, yaw = (
+            a[street.first_visit[index]] for a in (kinds, index, lateral, yaw)
+        )
+        heading = street.heading[index]
+        left = np.stack([-np.sin(heading), np.cos(heading)], axis=-1)
+        xy = street.points[index, :2] + side * lateral[:, None] * left
+        z = street.points[index, 2] - camera_height + sizes_by_type[kinds, 2] / 2
+        pose = np.tile(np.eye(4), (len(kinds), 1, 1))
+        pose[:, :3, :3] = yaw_rotation(yaw)
+        pose[:, :3, 3] = np.concatenate([xy, z[:, None]], axis=1)
+        poses.append(pose)
+        types.append(kinds)
+    car_poses, car_types = np.concatenate(poses), np.concatenate(types)
+    # Off the road that is driven, and no two cars on one spot (kerbs of crossing streets).
+    clearance, _ = cKDTree(street.points[:, :2]).query(car_poses[:, :2, 3])
+    keep = clearance >= parking.min_path_clearance_m
+    car_poses, car_types = car_poses[keep], car_types[keep]
+    keep = _spread_out(car_poses[:, :2, 3], parking.min_separation_m)
+    return car_poses[keep], car_types[keep], sizes_by_type[car_types[keep]]
+
+
+def _spread_out(points: np.ndarray, distance: float) -> np.ndarray:
+    """Greedy: keep a point unless an earlier kept one is closer than `distance`."""
+    tree = cKDTree(points)
+    keep = np.ones(len(points), dtype=bool)
+    for i, j in sorted(tree.query_pairs(distance)):
+        if keep[i] and keep[j]:
+            keep[j] = False
+    return keep
+
+
+def build_world(config: Kitti05CarsConfig) -> Kitti05World:
+    times_ns, poses = read_sequence(config.sequence)
+    street = street_of(poses[:, :3, 3], config.parking)
+    rng = np.random.default_rng(config.world_seed)
+    car_poses, car_types, car_sizes = park_cars(
+        street, config.sequence.camera_height_m, config.parking, config.vehicles, rng
+    )
+    logger.debug(
+        "%s: %d cars along %.0f m of new street", NAME, len(car_types), street.first_visit.sum()
+    )
+    return Kitti05World(times_ns, poses, car_poses, car_types, car_sizes)
+
+
+# --- the camera and the detector ------------------------------------------------------------
+
+CAMERA_FROM_BODY_ROTATION = BODY_FROM_CAMERA[:3, :3].T
+
+
+def project(points_body: np.ndarray, camera: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Body-frame points (..., 3) to pixels (..., 2) and depths (...,) of the left camera."""
+    c = points_body @ CAMERA_FROM_BODY_ROTATION.T
+    depth = c[..., 2]
+    safe = np.where(np.abs(depth) < 1e-9, 1e-9, depth)
+    u = camera.fx * c[..., 0] / safe + camera.cx
+    v = camera.fy * c[..., 1] / safe + camera.cy
+    return np.stack([u, v], axis=-1), depth
+
+
+def in_image(pixels: np.ndarray, camera: CameraConfig) -> np.ndarray:
+    u, v = pixels[..., 0], pixels[..., 1]
+    return (u >= 0) & (u <= camera.width) & (v >= 0) & (v <= camera.height)
+
+
+def bearing_elevation_pixel_jacobian(pixels: np.ndarray, camera: CameraConfig) -> np.ndarray:
+    """d(bearing, elevation) / d(u, v) at (N, 2) pixels, (N, 2, 2).
+
+    With a = (u - cx)/fx and c = (v - cy)/fy: bearing = -atan(a) and
+    elevation = -atan(c / sqrt(1 + a^2)) (body x = camera z, y = -camera x, z = -camera y).
+    """
+    a = (pixels[:, 0] - camera.cx) / camera.fx
+    c = (pixels[:, 1] - camera.cy) / camera.fy
+    q2 = 1.0 + a * a
+    q = np.sqrt(q2)
+    jac = np.zeros((len(a), 2, 2))
+    jac[:, 0, 0] = -1.0 / (q2 * camera.fx)
+    jac[:, 1, 0] = a * c / (q * (q2 + c * c) * camera.fx)
+    jac[:, 1, 1] = -q / ((q2 + c * c) * camera.fy)
+    return jac
+
+
+def stereo_range_sigma(
+    depth: np.ndarray, distance: np.ndarray, camera: CameraConfig, sigma_d: float
+) -> np.ndarray:
+    """sigma of the range: sigma_z = z^2 sigma_d / (f b), stretched along the ray by r / z."""
+    sigma_z = depth**2 * sigma_d / (camera.fx * camera.baseline_m)
+    return sigma_z * distance / depth
+
+
+def measurement_covariances(
+    pixels: np.ndarray,
+    depth: np.ndarray,
+    distance: np.ndarray,
+    camera: CameraConfig,
+    d: DetectorConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(covariances (N, 3, 3), pixel Jacobians (N, 2, 2), range sigmas (N,)) of detections."""
+    jac = bearing_elevation_pixel_jacobian(pixels, camera)
+    sigma_r = stereo_range_sigma(depth, distance, camera, d.disparity_sigma_px)
+    cov = np.zeros((len(depth), 3, 3))
+    cov[:, :2, :2] = d.pixel_sigma_px**2 * jac @ np.swapaxes(jac, 1, 2)
+    cov[:, 2, 2] = sigma_r**2
+    return cov, jac, sigma_r
+
+
+def box_corners(poses: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+    """(N, 8, 3) corners of boxes with centre/heading `poses` and (length, width, height)."""
+    local = _BOX_CORNERS[None, :, :] * sizes[:, None, :]
+    return np.einsum("nij,nkj->nki", poses[:, :3, :3], local) + poses[:, None, :3, 3]
+
+
+def bounding_boxes(corners_body: np.ndarray, camera: CameraConfig) -> np.ndarray:
+    """(N, 4) image boxes [u_min, v_min, u_max, v_max] of body-frame corners, clipped."""
+    pixels, depth = project(corners_body, camera)
+    front = (depth > _NEAR_PLANE_M)[..., None]
+    lo = np.where(front, pixels, np.inf).min(axis=1)
+    hi = np.where(front, pixels, -np.inf).max(axis=1)
+    size = np.array([camera.width, camera.height], dtype=float)
+    lo, hi = np.clip(lo, 0.0, size), np.clip(hi, 0.0, size)
+    return np.concatenate([lo, hi], axis=1)
+
+
+@dataclass
+class DetectionBatch:
+    """Detections as arrays, one row each (true ones and false alarms alike)."""
+
+    pose_index: np.ndarray
+    truth: np.ndarray  # landmark id, -1 for a false alarm
+    kind: np.ndarray  # vehicle type (true, or the phantom's)
+    measured: np.ndarray  # (n, 3) bearing, elevation, range
+    covariance: np.ndarray  # (n, 3, 3)
+    bbox: np.ndarray  # (n, 4)
+    score: np.ndarray
+
+
+def detect_cars(
+    world: Kitti05World,
+    camera: CameraConfig,
+    d: DetectorConfig,
+    streams: dict[str, np.random.Generator],
+) -> DetectionBatch:
+    """Cars in view and range that the detector scores above its threshold, with noise."""
+    rotations, origins = world.poses[:, :3, :3], world.poses[:, :3, 3]
+    centres = world.car_poses[:, :3, 3]
+    local = np.einsum("nji,nmj->nmi", rotations, centres[None] - origins[:, None])  # (N, M, 3)
+    pixels, depth = project(local, camera)
+    distance = np.linalg.norm(local, axis=-1)
+    candidate = (depth >= d.min_depth_m) & (distance <= d.max_range_m) & in_image(pixels, camera)
+    pose_index, car = np.nonzero(candidate)
+    local, pixels, depth, distance = (
+        local[pose_index, car],
+        pixels[pose_index, car],
+        depth[pose_index, car],
+        distance[pose_index, car],
+    )
+    # Confidence falls with range; below the threshold the car is missed.
+    mean = d.score_logit_near + (d.score_logit_far - d.score_logit_near) * distance / d.max_range_m
+    score = logistic(mean + d.score_logit_sigma * streams["visibility"].standard_normal(len(car)))
+    kept = score >= d.score_threshold
+    pose_index, car, local, pixels, depth, distance, score = (
+        a[kept] for a in (pose_index, car, local, pixels, depth, distance, score)
+    )
+    cov, jac, sigma_r = measurement_covariances(pixels, depth, distance, camera, d)
+    rng = streams["measurement"]
+    pixel_noise = d.pixel_sigma_px * rng.standard_normal((len(car), 2))
+    range_noise = sigma_r * rng.standard_normal(len(car))
+    measured = bearing_elevation_range(local)
+    measured[:, :2] += np.einsum("nij,nj->ni", jac, pixel_noise)
+    measured[:, 2] += range_noise
+    corners = box_corners(world.car_poses[car], world.car_sizes[car])
+    corners_body = np.einsum(
+        "nji,nkj->nki", rotations[pose_index], corners - origins[pose_index][:, None, :]
+    )
+    size = np.array([camera.width, camera.height, camera.width, camera.height], dtype=float)
+    bbox = np.clip(bounding_boxes(corners_body, camera) + np.tile(pixel_noise, 2), 0.0, size)
+    return DetectionBatch(pose_index, car, world.car_types[car], measured, cov, bbox, score)
+
+
+def false_alarms(
+    num_frames: int, config: Kitti05CarsConfig, rng: np.random.Generator
+) -> DetectionBatch:
+    """Phantom car-sized boxes standing on the road plane in view, scored like any detection."""
+    camera, d = config.camera, config.detector
+    count = rng.poisson(d.false_alarms_per_frame, num_frames)
+    pose_index = np.repeat(np.arange(num_frames), count)
+    n = len(pose_index)
+    shares = np.array([v.frequency for v in config.vehicles])
+    kind = rng.choice(len(config.vehicles), size=n, p=shares / shares.sum())
+    sizes = np.array([[v.length_m, v.width_m, v.height_m] for v in config.vehicles])[kind]
+    u = rng.uniform(0.0, camera.width, n)
+    depth = rng.uniform(d.min_depth_m, d.max_range_m, n)
+    score = logistic(d.false_alarm_logit_mean + d.score_logit_sigma * rng.standard_normal(n))
+    height_below = config.sequence.camera_height_m - sizes[:, 2] / 2
+    camera_points = np.stack([(u - camera.cx) * depth / camera.fx, height_below, depth], -1)
+    local = camera_points @ BODY_FROM_CAMERA[:3, :3].T
+    pixels, _ = project(local, camera)
+    distance = np.linalg.norm(local, axis=-1)
+    kept = (score >= d.score_threshold) & in_image(pixels, camera) & (distance <= d.max_range_m)
+    pose_index, kind, sizes, local, pixels, depth, distance, score = (
+        a[kept] for a in (pose_index, kind, sizes, local, pixels, depth, distance, score)
+    )
+    cov, _, _ = measurement_covariances(pixels, depth, distance, camera, d)
+    boxes = np.tile(np.eye(4), (len(kind), 1, 1))
+    boxes[:, :3, 3] = local  # facing the camera, in the body frame of the frame's pose
+    bbox = bounding_boxes(box_corners(boxes, sizes), camera)
+    truth = np.full(len(kind), -1)
+    return DetectionBatch(pose_index, truth, kind, bearing_elevation_range(local), cov, bbox, score)
+
+
+def _concatenate(a: DetectionBatch, b: DetectionBatch) -> DetectionBatch:
+    return DetectionBatch(
+        *(
+            np.concatenate([getattr(a, f), getattr(b, f)])
+            for f in DetectionBatch.__dataclass_fields__
+        )
+    )
+
+
+# --- the run --------------------------------------------------------------------------------
+
+
+def class_names(vehicles: tuple[VehicleClass, ...], num_classes: int) -> list[str]:
+    """Vehicle type k is class k mod C; a class's name lists the types it holds."""
+    names = []
+    for c in range(num_classes):
+        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
+        names.append("+".join(members) if members else f"class-{c}")
+    return names
+
+
+def calibration_of(camera: CameraConfig, stamp_ns: int) -> StereoCalibration:
+    return StereoCalibration(
+        stamp_ns=stamp_ns,
+        width=camera.width,
+        height=camera.height,
+        fx=camera.fx,
+        fy=camera.fy,
+        cx=camera.cx,
+        cy=camera.cy,
+        baseline=camera.baseline_m,
+        body_from_camera=floats(BODY_FROM_CAMERA),
+    )
+
+
+def simulate(
+    config: Kitti05CarsConfig, options: SimulationOptions, config_path: Path | None = None
+) -> SimulatedRun:
+    world = build_world(config)
+    streams = random_streams(options.seed)
+    num_classes = options.num_classes
+
+    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
+    odometry = corrupt_odometry(streams["odometry"], relative_poses(world.poses), true)
+
+    batch = _concatenate(
+        detect_cars(world, config.camera, config.detector, streams),
+        false_alarms(len(world.poses), config, streams["false_positives"]),
+    )
+    confusion = confusion_matrix(num_classes, options.misclassification)
+    reported = sample_reported_classes(streams["classes"], batch.kind % num_classes, confusion)
+
+    detections: list[list[Detection]] = [[] for _ in range(len(world.poses))]
+    # Within a frame, detections go left to right as in the image (no hint of the truth).
+    for k in np.lexsort((-batch.measured[:, 0], batch.pose_index)):
+        detections[batch.pose_index[k]].append(
+            Detection(
+                class_id=int(reported[k]),
+                score=float(batch.score[k]),
+                bearing=float(batch.measured[k, 0]),
+                elevation=float(batch.measured[k, 1]),
+                range=float(batch.measured[k, 2]),
+                covariance=floats(batch.covariance[k]),
+                source="bbox",
+                bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
+                truth_landmark_id=int(batch.truth[k]),
+            )
+        )
+    landmarks = [
+        GroundTruthLandmark(
+            id=m,
+            class_id=int(world.car_types[m]) % num_classes,
+            position=floats(world.car_poses[m, :3, 3]),  # type: ignore[arg-type]
+        )
+        for m in range(len(world.car_types))
+    ]
+    names = class_names(config.vehicles, num_classes)
+    return SimulatedRun(
+        times_ns=world.times_ns,
+        poses=world.poses,
+        odometry=odometry,
+        odometry_covariance=true if options.true_covariance else calibrated,
+        detections=detections,
+        landmarks=landmarks,
+        metadata=metadata_for(
+            num_classes, confusion, names, source_text(NAME, options, config_path)
+        ),
+        calibration=calibration_of(config.camera, int(world.times_ns[0])),
+    )

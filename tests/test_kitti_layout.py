@@ -1,0 +1,205 @@
+"""The KITTI odometry layout: poses, times, calibration, the body frame, the sequence reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from data_tools.scenarios.geometry import se3_exp
+from pipeline.datasets.kitti import (
+    BODY_FROM_CAMERA,
+    KittiSequence,
+    StereoIntrinsics,
+    body_poses_to_camera,
+    camera_poses_to_body,
+    read_calibration,
+    read_poses,
+    read_times,
+    write_calibration,
+    write_poses,
+    write_times,
+)
+from pipeline.errors import InputError
+
+KITTI_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-odometry-05"
+needs_kitti = pytest.mark.skipif(
+    not (KITTI_DIR / "poses.txt").exists(), reason="../shared/data/kitti-odometry-05 is absent"
+)
+
+# calib.txt of KITTI odometry sequences 04-12, as KITTI ships it (P2, P3 and Tr left out).
+KITTI_CALIB_05 = """\
+P0: 7.070912000000e+02 0.000000000000e+00 6.018873000000e+02 0.000000000000e+00 \
+0.000000000000e+00 7.070912000000e+02 1.831104000000e+02 0.000000000000e+00 \
+0.000000000000e+00 0.000000000000e+00 1.000000000000e+00 0.000000000000e+00
+P1: 7.070912000000e+02 0.000000000000e+00 6.018873000000e+02 -3.798145000000e+02 \
+0.000000000000e+00 7.070912000000e+02 1.831104000000e+02 0.000000000000e+00 \
+0.000000000000e+00 0.000000000000e+00 1.000000000000e+00 0.000000000000e+00
+"""
+
+
+def random_poses(n: int, seed: int, first_identity: bool = True) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    poses = se3_exp(rng.normal(0.0, [1, 1, 1, 20, 20, 20], (n, 6)))
+    if first_identity:
+        poses[0] = np.eye(4)
+    return poses
+
+
+def test_body_frame_axes_follow_rep_103():
+    # The camera's axes in the body frame: x right, y down, z forward (its optical axis).
+    right, down, forward = BODY_FROM_CAMERA[:3, :3].T
+    np.testing.assert_array_equal(forward, [1, 0, 0])
+    np.testing.assert_array_equal(right, [0, -1, 0])
+    np.testing.assert_array_equal(down, [0, 0, -1])
+    assert np.linalg.det(BODY_FROM_CAMERA[:3, :3]) == pytest.approx(1.0)
+
+
+def test_camera_motion_becomes_body_motion():
+    # The camera moves 2 m along its z (forward) and turns right (about its y, pointing down).
+    angle = 0.3
+    c, s = np.cos(angle), np.sin(angle)
+    turn_right = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])  # rotation about camera y (down)
+    camera = np.tile(np.eye(4), (2, 1, 1))
+    camera[1, :3, :3] = turn_right
+    camera[1, :3, 3] = [0.0, 0.0, 2.0]
+    body = camera_poses_to_body(camera)
+    np.testing.assert_allclose(body[1, :3, 3], [2.0, 0.0, 0.0], atol=1e-15)
+    yaw = np.arctan2(body[1, 1, 0], body[1, 0, 0])
+    assert yaw == pytest.approx(-angle)  # turning right is a negative yaw about z up
+
+
+def test_pose_conversion_round_trips():
+    camera = random_poses(50, seed=1)
+    body = camera_poses_to_body(camera)
+    np.testing.assert_allclose(body[0], np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(body_poses_to_camera(body), camera, atol=1e-12)
+    np.testing.assert_allclose(camera_poses_to_body(body_poses_to_camera(body)), body, atol=1e-12)
+
+    # Relative motions keep their size: the path length does not change.
+    def length(p):
+        return np.linalg.norm(np.diff(p[:, :3, 3], axis=0), axis=1).sum()
+
+    assert length(body) == pytest.approx(length(camera))
+
+
+def test_pose_conversion_expresses_poses_in_the_first_body_frame():
+    camera = random_poses(20, seed=2, first_identity=False)
+    body = camera_poses_to_body(camera)
+    np.testing.assert_allclose(body[0], np.eye(4), atol=1e-12)
+    # Motions between poses are the same rigid motions, seen in body axes.
+    b = BODY_FROM_CAMERA
+    for k in range(len(camera) - 1):
+        camera_motion = np.linalg.inv(camera[k]) @ camera[k + 1]
+        body_motion = np.linalg.inv(body[k]) @ body[k + 1]
+        np.testing.assert_allclose(body_motion, b @ camera_motion @ np.linalg.inv(b), atol=1e-9)
+
+
+@needs_kitti
+def test_real_sequence_05_converts_to_a_level_body_path():
+    camera = read_poses(KITTI_DIR / "poses.txt")
+    assert camera.shape == (2761, 4, 4)
+    body = camera_poses_to_body(camera)
+    np.testing.assert_allclose(body_poses_to_camera(body), camera, atol=1e-6)  # pose 0 ~ I
+    # A car: z up stays near the world's up, and it drives forward (body x) from the start.
+    assert np.all(body[:, 2, 2] > np.cos(0.15))
+    assert body[20, 0, 3] > 5.0 and abs(body[20, 1, 3]) < 1.0
+    # It keeps near the ground plane of its start: height varies far less than the extent.
+    extent = np.ptp(body[:, :2, 3], axis=0).max()
+    assert np.ptp(body[:, 2, 3]) < 0.1 * extent
+    times = read_times(KITTI_DIR / "times.txt")
+    assert len(times) == 2761 and 9.0 < 1.0 / np.median(np.diff(times)) < 11.0
+
+
+def test_poses_times_and_calibration_round_trip(tmp_path):
+    poses = random_poses(30, seed=3)
+    write_poses(tmp_path / "poses.txt", poses)
+    np.testing.assert_allclose(read_poses(tmp_path / "poses.txt"), poses, rtol=1e-8, atol=1e-8)
+    # KITTI-like stamps a few minutes in: microseconds must survive the text file.
+    times = np.cumsum(np.random.default_rng(6).uniform(0.09, 0.11, 30)) + 280.0
+    write_times(tmp_path / "times.txt", times)
+    np.testing.assert_allclose(read_times(tmp_path / "times.txt"), times, rtol=0, atol=1e-6)
+    intrinsics = StereoIntrinsics(1226, 370, 707.0912, 707.0912, 601.8873, 183.1104, 0.5372)
+    write_calibration(tmp_path / "calib.txt", intrinsics)
+    assert read_calibration(tmp_path / "calib.txt", 1226, 370) == pytest.approx(intrinsics)
+
+
+def test_reads_kittis_own_calibration_text(tmp_path):
+    (tmp_path / "calib.txt").write_text(KITTI_CALIB_05)
+    k = read_calibration(tmp_path / "calib.txt", 1226, 370)
+    assert (k.fx, k.fy, k.cx, k.cy) == (707.0912, 707.0912, 601.8873, 183.1104)
+    assert k.baseline == pytest.approx(379.8145 / 707.0912)
+    np.testing.assert_allclose(k.camera_matrix[:2, 2], [601.8873, 183.1104])
+
+
+@pytest.mark.parametrize(
+    ("name", "text"),
+    [
+        ("poses.txt", "1 0 0 0 0 1 0 0 0 0 1\n"),
+        ("poses.txt", "1 0 0 0 0 1 0 0 0 0 1 nan\n"),
+        ("times.txt", "0.0\n0.2\n0.1\n"),
+        ("calib.txt", "P0: 1 2 3\n"),
+    ],
+)
+def test_bad_files_are_input_errors(tmp_path, name, text):
+    path = tmp_path / name
+    path.write_text(text)
+    reader = {
+        "poses.txt": read_poses,
+        "times.txt": read_times,
+        "calib.txt": lambda p: read_calibration(p, 10, 10),
+    }[name]
+    with pytest.raises(InputError, match=name):
+        reader(path)
+
+
+def make_sequence(root: Path, frames: int, with_poses: bool = True) -> Path:
+    """A KITTI layout: dataset/sequences/05/{image_0,image_1,calib.txt,times.txt}, poses/05.txt."""
+    sequence = root / "sequences" / "05"
+    for side in ("image_0", "image_1"):
+        (sequence / side).mkdir(parents=True)
+        for k in range(frames):
+            image = np.full((37, 122), (k * 10 + (side == "image_1")) % 256, dtype=np.uint8)
+            assert cv2.imwrite(str(sequence / side / f"{k:06d}.png"), image)
+    (sequence / "calib.txt").write_text(KITTI_CALIB_05)
+    write_times(sequence / "times.txt", np.arange(frames) * 0.1)
+    if with_poses:
+        (root / "poses").mkdir()
+        write_poses(root / "poses" / "05.txt", random_poses(frames, seed=4))
+    return sequence
+
+
+def test_sequence_reader_gives_frames_intrinsics_and_ground_truth(tmp_path):
+    sequence = KittiSequence(make_sequence(tmp_path, 4))
+    assert len(sequence) == 4
+    assert (sequence.intrinsics.width, sequence.intrinsics.height) == (122, 37)
+    assert sequence.intrinsics.baseline == pytest.approx(0.5372, abs=1e-4)
+    left, right = sequence[2]
+    assert left.shape == right.shape == (37, 122)
+    assert left[0, 0] == 20 and right[0, 0] == 21
+    assert sequence.gt_poses is not None and sequence.gt_poses.shape == (4, 4, 4)
+    np.testing.assert_allclose(sequence.times, np.arange(4) * 0.1)
+
+
+def test_sequence_reader_without_ground_truth(tmp_path):
+    sequence = KittiSequence(make_sequence(tmp_path, 3, with_poses=False))
+    assert sequence.gt_poses is None
+
+
+@pytest.mark.parametrize("broken", ["no-dir", "calib.txt", "image_1", "times", "poses"])
+def test_sequence_reader_rejects_broken_layouts(tmp_path, broken):
+    root = make_sequence(tmp_path, 3)
+    if broken == "no-dir":
+        root = tmp_path / "missing"
+    elif broken == "calib.txt":
+        (root / "calib.txt").unlink()
+    elif broken == "image_1":
+        (root / "image_1" / "000002.png").unlink()
+    elif broken == "times":
+        write_times(root / "times.txt", np.arange(5) * 0.1)
+    else:
+        write_poses(tmp_path / "poses" / "05.txt", random_poses(2, seed=5))
+    with pytest.raises(InputError):
+        KittiSequence(root)

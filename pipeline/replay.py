@@ -185,7 +185,7 @@ def replay(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: exists and is not a directory")
-    log = read_log(log_path)
+    log = read_log(log_path, load_images=sink.wants_images)
     _check_inputs(log, method)
     try:
         sink.start(log, method)

@@ -36,7 +36,7 @@ class KeyframeReport:
     pose_index: int
     records: list[AssociationRecord]
     candidates: list[Candidates]
-    changed: int  # associations revisited after the update (switches, re-weightings)
+    switched: list[AssociationRecord]  # earlier associations this keyframe changed
     seconds: float
 
 
@@ -115,13 +115,14 @@ class Backend:
         self.records.extend(records)
         self.num_poses += 1
         marked = self.solver.update()
-        changed = 0
+        switched: list[AssociationRecord] = []
         if self.method.uses_candidates:  # known association needs no map search or revisits
-            changed = self.method.refine(self.context.after_update(marked))
-        self.switches += changed
+            switched = self.method.refine(self.context.after_update(marked))
+        self.switches += len(switched)
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
-        return KeyframeReport(prediction.pose_index, records, candidates, changed, seconds)
+        unique = list({id(r): r for r in switched}.values())
+        return KeyframeReport(prediction.pose_index, records, candidates, unique, seconds)
 
     def result(self) -> BackendResult:
         self.method.finish()

@@ -10,6 +10,8 @@ if TYPE_CHECKING:
 
 
 class Sink(Protocol):
+    wants_images: bool  # replay loads the log's images only for a sink that shows them
+
     def start(self, log: DetectionLog, method: str) -> None: ...
 
     def keyframe(self, report: KeyframeReport, backend: Backend) -> None: ...
@@ -21,6 +23,8 @@ class Sink(Protocol):
 
 class NullSink:
     """Shows nothing, costs nothing."""
+
+    wants_images = False
 
     def start(self, log: DetectionLog, method: str) -> None:
         pass

@@ -103,10 +103,10 @@ class AssociationMethod(ABC):
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         """Add the detection's factors (pending in the solver) and return its record."""
 
-    def refine(self, moved: set[int]) -> int:
-        """After an iSAM2 update that moved `moved`: revisit associations; returns how many
-        changed."""
-        return 0
+    def refine(self, moved: set[int]) -> list[AssociationRecord]:
+        """After an iSAM2 update that moved `moved`: revisit associations; returns the records
+        whose landmark changed (in the order of their changes)."""
+        return []
 
     def finish(self) -> None:  # noqa: B027 - most methods have nothing to settle
         """Settle the final associations once every keyframe is in."""

@@ -40,10 +40,10 @@ class GaussianPDA(MixtureMethod):
         ]
         record.graph_weights = np.asarray(weights, dtype=float)
 
-    def refine(self, moved: set[int]) -> int:
+    def refine(self, moved: set[int]) -> list[AssociationRecord]:
         solver = self.context.solver
         tolerance = self.config.gpda.weight_tolerance
-        changed = 0
+        changed: list[AssociationRecord] = []
         for _ in range(self.config.gpda.max_iterations):
             records = self.affected(moved)
             if not records:
@@ -57,10 +57,10 @@ class GaussianPDA(MixtureMethod):
                     continue
                 if np.argmax(weights) != np.argmax(record.graph_weights):
                     record.switches += 1
+                    changed.append(record)
                 self._put_factors(record, weights)
                 reweighted += 1
             if not reweighted:
                 break
-            changed += reweighted
             moved = self.context.after_update(solver.update())
         return changed

@@ -101,17 +101,17 @@ class MaxMixture(MixtureMethod):
             best.append(winner)
         return best
 
-    def refine(self, moved: set[int]) -> int:
+    def refine(self, moved: set[int]) -> list[AssociationRecord]:
         """Swap in the winning component wherever it changed, until none changes."""
         if self.in_factor:
-            return 0
+            return []
         solver = self.context.solver
-        changed = 0
+        changed: list[AssociationRecord] = []
         for _ in range(self.config.mixture.max_switch_rounds):
             records = self.affected(moved)
             if not records:
                 break
-            switched = 0
+            switched = []
             for record, winner in zip(
                 records, self._best(records, self.context.estimates()), strict=True
             ):
@@ -124,7 +124,7 @@ class MaxMixture(MixtureMethod):
                     ]
                 record.active = winner
                 record.switches += 1
-                switched += 1
+                switched.append(record)
             if not switched:
                 break
             changed += switched

@@ -54,6 +54,16 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_frontend(args: argparse.Namespace) -> int:
+    from pipeline.frontend.run import run_frontend
+
+    summary = run_frontend(
+        args.sequence, args.out, args.config, images=args.images, progress=not args.quiet
+    )
+    print(summary.summary_line())
+    return 0
+
+
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from pipeline.inspect import inspect_log, render_text
 
@@ -111,6 +121,16 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
     simulate.set_defaults(run=_cmd_simulate)
+
+    frontend = commands.add_parser("frontend", help="stereo images to a detection log")
+    frontend.add_argument("sequence", type=Path, metavar="SEQUENCE_DIR")
+    frontend.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    frontend.add_argument(
+        "--config", type=Path, metavar="FILE", help="TOML over configs/frontend.toml"
+    )
+    frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
+    frontend.add_argument("--quiet", action="store_true", help="no progress bars")
+    frontend.set_defaults(run=_cmd_frontend)
 
     inspect = commands.add_parser("inspect", help="what a log holds, and whether it is valid")
     inspect.add_argument("log", type=Path, metavar="LOG.mcap")

@@ -1,0 +1,173 @@
+"""mmslam's own plain layout: two image folders and a calibration file.
+
+    SEQUENCE/
+      calibration.toml   the rectified stereo camera (below; see configs/plain-calibration.toml)
+      left/  right/      rectified grey or colour images; sorted by name, paired in that order
+      times.txt          optional: one time (s) a line; else frames are 1/frame_rate apart
+      poses.txt          optional: left-camera poses, KITTI's format (12 numbers a line)
+
+calibration.toml:
+
+    [camera]
+    fx = 707.0912        # focal lengths and principal point (px), shared by both cameras
+    fy = 707.0912
+    cx = 601.8873
+    cy = 183.1104
+    baseline = 0.5372    # m: the right camera sits at +baseline along the left camera's x
+    # width = 1226       # optional: checked against the images
+    # height = 370
+
+    [sequence]           # optional table
+    left = "left"        # the image folders
+    right = "right"
+    frame_rate = 10.0    # Hz, used when there is no times.txt
+
+The reader has the same face as `KittiSequence`: `len`, `[i]` -> (left, right) grey images,
+`times`, `intrinsics`, `gt_poses` (left-camera poses, or None).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from pipeline.datasets.kitti import (
+    IMAGE_SUFFIXES,
+    StereoIntrinsics,
+    read_poses,
+    read_times,
+)
+from pipeline.errors import InputError
+
+CALIBRATION_FILE = "calibration.toml"
+CAMERA_KEYS = ("fx", "fy", "cx", "cy", "baseline")
+
+
+def _number(table: dict[str, Any], key: str, path: Path, where: str) -> float:
+    value = table.get(key)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not np.isfinite(value):
+        raise InputError(f"calibration {path}: '{where}{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str, Any]]:
+    """The `[camera]` numbers and the `[sequence]` settings of a calibration.toml."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            document = tomllib.load(f)
+    except OSError as exc:
+        raise InputError(f"calibration {path}: cannot read ({exc.strerror})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"calibration {path}: not valid TOML ({exc})") from None
+    camera = document.get("camera")
+    if not isinstance(camera, dict):
+        raise InputError(f"calibration {path}: needs a [camera] table")
+    unknown = set(camera) - set(CAMERA_KEYS) - {"width", "height"}
+    if unknown:
+        raise InputError(f"calibration {path}: unknown key 'camera.{sorted(unknown)[0]}'")
+    numbers = {key: _number(camera, key, path, "camera.") for key in CAMERA_KEYS}
+    for key in ("width", "height"):
+        if key in camera:
+            numbers[key] = _number(camera, key, path, "camera.")
+    if min(numbers["fx"], numbers["fy"], numbers["baseline"]) <= 0:
+        raise InputError(f"calibration {path}: fx, fy and baseline must be positive")
+    sequence = {"left": "left", "right": "right", "frame_rate": 10.0}
+    given = document.get("sequence", {})
+    if not isinstance(given, dict):
+        raise InputError(f"calibration {path}: [sequence] must be a table")
+    for key, value in given.items():
+        if key not in sequence:
+            raise InputError(f"calibration {path}: unknown key 'sequence.{key}'")
+        sequence[key] = value
+    if not isinstance(sequence["left"], str) or not isinstance(sequence["right"], str):
+        raise InputError(f"calibration {path}: sequence.left and sequence.right must be names")
+    if _number(sequence, "frame_rate", path, "sequence.") <= 0:
+        raise InputError(f"calibration {path}: sequence.frame_rate must be positive")
+    return numbers, sequence
+
+
+def _image_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+class PlainSequence:
+    """A stereo sequence in the plain layout (see the module's description)."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        if not self.root.is_dir():
+            raise InputError(f"sequence {self.root}: no such directory")
+        calibration = self.root / CALIBRATION_FILE
+        if not calibration.exists():
+            raise InputError(f"sequence {self.root}: missing {CALIBRATION_FILE}")
+        camera, sequence = read_plain_calibration(calibration)
+        folders = [self.root / sequence["left"], self.root / sequence["right"]]
+        for folder in folders:
+            if not folder.is_dir():
+                raise InputError(f"sequence {self.root}: missing image folder {folder.name}/")
+        self.left_files, self.right_files = (_image_files(f) for f in folders)
+        if len(self.left_files) != len(self.right_files) or not self.left_files:
+            raise InputError(
+                f"sequence {self.root}: {folders[0].name}/ has {len(self.left_files)} images, "
+                f"{folders[1].name}/ has {len(self.right_files)}"
+            )
+        times_path = self.root / "times.txt"
+        if times_path.exists():
+            self.times = read_times(times_path)
+            if len(self.times) != len(self):
+                raise InputError(
+                    f"sequence {self.root}: times.txt has {len(self.times)} lines for "
+                    f"{len(self)} images"
+                )
+        else:
+            self.times = np.arange(len(self)) / float(sequence["frame_rate"])
+        height, width = self._read(self.left_files[0]).shape[:2]
+        for key, actual in (("width", width), ("height", height)):
+            if key in camera and int(camera[key]) != actual:
+                raise InputError(
+                    f"calibration {calibration}: camera.{key} is {int(camera[key])} but the "
+                    f"images are {actual}"
+                )
+        self.intrinsics = StereoIntrinsics(
+            width,
+            height,
+            camera["fx"],
+            camera["fy"],
+            camera["cx"],
+            camera["cy"],
+            camera["baseline"],
+        )
+        self.gt_poses = None
+        poses_path = self.root / "poses.txt"
+        if poses_path.exists():
+            self.gt_poses = read_poses(poses_path)
+            if len(self.gt_poses) != len(self):
+                raise InputError(
+                    f"poses {poses_path}: {len(self.gt_poses)} poses for {len(self)} images"
+                )
+
+    @staticmethod
+    def _read(path: Path) -> np.ndarray:
+        import cv2
+
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise InputError(f"image {path}: cannot be read")
+        return image
+
+    def __len__(self) -> int:
+        return len(self.left_files)
+
+    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """The rectified (left, right) grey images of a frame."""
+        left, right = self._read(self.left_files[index]), self._read(self.right_files[index])
+        if left.shape != right.shape:
+            raise InputError(
+                f"sequence {self.root}: frame {index} has left {left.shape[::-1]} and right "
+                f"{right.shape[::-1]} images"
+            )
+        return left, right

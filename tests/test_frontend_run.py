@@ -1,0 +1,253 @@
+"""The front-end end to end: a rendered sequence in, a contract-v1 log out, checked against the
+sequence's ground truth; and the plain layout, and bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.datasets.kitti import BODY_FROM_CAMERA, KittiSequence, camera_poses_to_body
+from pipeline.datasets.plain import PlainSequence
+from pipeline.errors import InputError
+from pipeline.frontend import geometry as g
+from pipeline.frontend.config import load_frontend_config
+from pipeline.frontend.ground_truth import box_corners, projected_box, read_landmarks
+from pipeline.frontend.run import class_metadata, open_sequence, run_frontend, run_objects
+from pipeline.log import read_log
+
+DEMO_FRAMES = 40
+CHI2_3DOF_999 = 16.27
+
+
+@functools.cache
+def rendered_demo() -> Path:
+    """The first frames of the renderer's demo preset, rendered once a test session (~10 s)."""
+    from data_tools.render import render_sequence
+
+    root = Path(_scratch.name) / "demo"
+    return render_sequence("demo", root, seed=0, num_frames=DEMO_FRAMES)
+
+
+_scratch = tempfile.TemporaryDirectory(prefix="mmslam-frontend-tests-")
+
+
+@pytest.fixture(scope="module")
+def demo_log(tmp_path_factory):
+    out = tmp_path_factory.mktemp("frontend") / "demo.mcap"
+    summary = run_frontend(rendered_demo(), out, images=True, progress=False)
+    return summary, read_log(out), KittiSequence(rendered_demo())
+
+
+def truth_landmarks(sequence_dir: Path) -> dict[int, dict]:
+    document = json.loads((sequence_dir / "landmarks.json").read_text())
+    return {lm["id"]: lm for lm in document["landmarks"]}
+
+
+def test_log_is_valid_and_complete(demo_log):
+    summary, log, sequence = demo_log
+    assert log.num_poses == summary.num_poses
+    assert len(log.detections) == log.num_poses  # one message a pose, empty or not
+    assert DEMO_FRAMES // 10 < log.num_poses <= DEMO_FRAMES
+    assert [m.pose_index for m in log.ground_truth_poses] == list(range(log.num_poses))
+    assert log.image_counts == {
+        "/camera/left/compressed": log.num_poses,
+        "/camera/right/compressed": log.num_poses,
+    }
+    assert log.metadata.num_classes == 2
+    assert log.metadata.confusion_matrix == ((1.0, 0.0), (0.0, 1.0))
+    calibration = log.calibration
+    assert calibration is not None
+    assert (calibration.width, calibration.fx) == (
+        sequence.intrinsics.width,
+        sequence.intrinsics.fx,
+    )
+    np.testing.assert_allclose(np.reshape(calibration.body_from_camera, (4, 4)), BODY_FROM_CAMERA)
+    stamps = [m.stamp_ns for m in log.odometry]
+    assert stamps == sorted(stamps)
+
+
+def test_odometry_matches_the_ground_truth(demo_log):
+    _, log, _ = demo_log
+    truth = []
+    for message in log.ground_truth_poses:
+        pose = np.eye(4)
+        pose[:3, :3] = g.rotation_from_quaternion(message.rotation)
+        pose[:3, 3] = message.translation
+        truth.append(pose)
+    np.testing.assert_allclose(truth[0], np.eye(4), atol=1e-9)
+    estimate = np.eye(4)
+    for message in log.odometry:
+        step = np.eye(4)
+        step[:3, :3] = g.rotation_from_quaternion(message.rotation)
+        step[:3, 3] = message.translation
+        true_step = np.linalg.inv(truth[message.from_index]) @ truth[message.to_index]
+        delta = np.linalg.inv(step) @ true_step
+        assert np.linalg.norm(delta[:3, 3]) < 0.06
+        assert g.rotation_angle(delta[:3, :3]) < np.radians(0.3)
+        estimate = estimate @ step
+    # Dead reckoning over the whole run (~35 m): within 1 % of the distance.
+    distance = sum(
+        np.linalg.norm(truth[k + 1][:3, 3] - truth[k][:3, 3]) for k in range(len(truth) - 1)
+    )
+    assert np.linalg.norm(estimate[:3, 3] - truth[-1][:3, 3]) < 0.01 * distance
+
+
+def test_tag_detections_match_the_ground_truth(demo_log):
+    _, log, sequence = demo_log
+    landmarks = truth_landmarks(sequence.root)
+    truth_classes = {lm.id: lm.class_id for lm in log.ground_truth_landmarks.landmarks}
+    body = camera_poses_to_body(sequence.gt_poses)
+    keyframe_of_pose = {
+        m.pose_index: int(np.argmin([abs(t * 1e9 - m.stamp_ns) for t in sequence.times]))
+        for m in log.detections
+    }
+    relative_errors = []
+    count = 0
+    for message in log.detections:
+        pose = body[keyframe_of_pose[message.pose_index]]
+        for detection in message.detections:
+            count += 1
+            assert detection.source == "apriltag"
+            landmark = landmarks[detection.truth_landmark_id]
+            assert landmark["kind"] == "tag"
+            assert detection.class_id == landmark["tag_id"] % 2
+            assert truth_classes[detection.truth_landmark_id] == detection.class_id
+            point = np.linalg.inv(pose) @ np.r_[landmark["position"], 1.0]
+            true = g.bearing_elevation_range(point[:3])
+            error = np.array([detection.bearing, detection.elevation, detection.range]) - true
+            covariance = np.reshape(detection.covariance, (3, 3))
+            # Within the stated noise, and within 3 % of the range.
+            assert error @ np.linalg.solve(covariance, error) < CHI2_3DOF_999
+            assert abs(error[2]) < 0.03 * true[2]
+            assert np.abs(error[:2]).max() < np.radians(0.2)
+            relative_errors.append(abs(error[2]) / true[2])
+            # The tag's 6-DoF pose: its translation is the tag centre, near the point.
+            assert detection.relative_pose is not None
+            assert np.linalg.norm(detection.relative_pose.translation - point[:3]) < 0.05 * true[2]
+    assert count >= 10
+    assert np.median(relative_errors) < 0.01
+
+
+def test_same_sequence_in_the_plain_layout(tmp_path):
+    source = KittiSequence(rendered_demo())
+    root = tmp_path / "plain"
+    (root / "left").mkdir(parents=True)
+    (root / "right").mkdir()
+    for index in range(6):
+        shutil.copy(source.left_files[index], root / "left" / f"frame{index:03d}.png")
+        shutil.copy(source.right_files[index], root / "right" / f"frame{index:03d}.png")
+    k = source.intrinsics
+    (root / "calibration.toml").write_text(
+        f"[camera]\nfx = {k.fx}\nfy = {k.fy}\ncx = {k.cx}\ncy = {k.cy}\nbaseline = {k.baseline}\n"
+        f"width = {k.width}\nheight = {k.height}\n[sequence]\nframe_rate = 5.0\n"
+    )
+    sequence = open_sequence(root)
+    assert isinstance(sequence, PlainSequence)
+    assert sequence.intrinsics == k
+    np.testing.assert_allclose(sequence.times, np.arange(6) / 5.0)
+    assert sequence.gt_poses is None
+    summary = run_frontend(root, tmp_path / "plain.mcap", progress=False)
+    log = read_log(tmp_path / "plain.mcap")
+    assert log.num_poses == summary.num_poses >= 2
+    assert not log.has_ground_truth
+    frame_stamps = {round(t * 1e9) for t in sequence.times}
+    assert all(m.stamp_ns in frame_stamps for m in log.odometry)
+
+
+def test_plain_layout_errors_name_what_is_wrong(tmp_path):
+    root = tmp_path / "plain"
+    (root / "left").mkdir(parents=True)
+    (root / "right").mkdir()
+    source = KittiSequence(rendered_demo())
+    shutil.copy(source.left_files[0], root / "left" / "a.png")
+    shutil.copy(source.right_files[0], root / "right" / "a.png")
+    (root / "calibration.toml").write_text("[camera]\nfx = 1.0\nfy = 1.0\ncx = 0\ncy = 0\n")
+    with pytest.raises(InputError, match=r"camera\.baseline"):
+        PlainSequence(root)
+    (root / "calibration.toml").write_text(
+        "[camera]\nfx = 1.0\nfy = 1.0\ncx = 0\ncy = 0\nbaseline = 0.5\nwidth = 99\n"
+    )
+    with pytest.raises(InputError, match=r"camera\.width is 99"):
+        PlainSequence(root)
+
+
+def test_bad_input_leaves_no_log(tmp_path):
+    out = tmp_path / "out.mcap"
+    with pytest.raises(InputError, match="no such directory"):
+        run_frontend(tmp_path / "missing", out, progress=False)
+    with pytest.raises(InputError, match="neither the KITTI layout"):
+        run_frontend(tmp_path, out, progress=False)
+    config = tmp_path / "bad.toml"
+    config.write_text("[vo]\nmax_featurez = 10\n")
+    with pytest.raises(InputError, match=r"unknown key 'vo\.max_featurez'"):
+        run_frontend(rendered_demo(), out, config, progress=False)
+    config.write_text("[apriltags]\nsize = -1.0\n")
+    with pytest.raises(InputError, match=r"apriltags\.size"):
+        run_frontend(rendered_demo(), out, config, progress=False)
+    assert list(tmp_path.glob("*.mcap*")) == []
+
+
+@dataclasses.dataclass(frozen=True)
+class BoxRecord:
+    """What the object stage reports a box as: its class, score, image box, camera point."""
+
+    class_id: int
+    score: float
+    bbox: tuple[float, float, float, float]
+    point: np.ndarray
+    covariance: np.ndarray
+    landmark_id: int  # the test's own record of which car it is; the pipeline does not read it
+
+
+class TrueBoxes:
+    """An object stage that reports the rendered cars where they truly are, frame after frame."""
+
+    class_names = ("car",)
+
+    def __init__(self, landmarks, body_poses):
+        self.landmarks = [lm for lm in landmarks if lm.kind == "box"]
+        self.poses = iter(body_poses)
+
+    def detect(self, left, right, intrinsics):
+        pose = next(self.poses)
+        camera_from_body0 = np.linalg.inv(pose @ BODY_FROM_CAMERA)
+        records = []
+        for landmark in self.landmarks:
+            box = projected_box(box_corners(landmark), pose, intrinsics)
+            if box is None or (box[2] - box[0]) * (box[3] - box[1]) < 100:
+                continue
+            point = camera_from_body0[:3, :3] @ landmark.position + camera_from_body0[:3, 3]
+            covariance = np.diag([0.1, 0.1, 0.5])
+            records.append(BoxRecord(0, 0.9, box, point, covariance, landmark.id))
+        return records
+
+
+def test_object_boxes_get_classes_after_the_tags_and_their_true_ids():
+    sequence = KittiSequence(rendered_demo())
+    landmarks = read_landmarks(sequence.root / "landmarks.json")
+    body = camera_poses_to_body(sequence.gt_poses)
+    frames = [0, 10, 20]
+    config = load_frontend_config()
+    stage = TrueBoxes(landmarks, body[frames])
+    detections = run_objects(sequence, frames, stage, 2, landmarks, body, config, progress=False)
+    seen = [d for per_frame in detections for d in per_frame]
+    assert len(seen) >= 2
+    stage = TrueBoxes(landmarks, body[frames])
+    for per_frame in detections:
+        expected = stage.detect(None, None, sequence.intrinsics)
+        for detection, record in zip(per_frame, expected, strict=True):
+            assert detection.source == "bbox"
+            assert detection.class_id == 2  # after the two tag classes
+            assert detection.truth_landmark_id == record.landmark_id  # by projection and IoU
+            body_point = g.BODY_FROM_CAMERA_ROTATION @ record.point
+            assert detection.range == pytest.approx(np.linalg.norm(body_point))
+    metadata = class_metadata(config, stage, "test")
+    assert metadata.class_names == ("tag_mod2_0", "tag_mod2_1", "car")
+    np.testing.assert_allclose(metadata.confusion_matrix, np.eye(3))

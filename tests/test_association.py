@@ -119,3 +119,17 @@ def test_null_beats_a_component_only_far_out():
 def test_em_weights_on_padded_rows():
     w = mixture.em_weights(np.log([[0.5, 0.5, 1e-300]]), np.array([[0.0, math.log(3.0), -np.inf]]))
     np.testing.assert_allclose(w, [[0.25, 0.75, 0.0]])
+
+
+def test_batched_mahalanobis_and_density_match_one_by_one():
+    rng = np.random.default_rng(2)
+    residuals = rng.normal(size=(5, 3))
+    factors = rng.normal(size=(5, 3, 3))
+    covariances = factors @ np.swapaxes(factors, 1, 2) + 0.1 * np.eye(3)
+    for k in range(5):
+        assert assoc.mahalanobis_squared_batch(residuals, covariances)[k] == pytest.approx(
+            assoc.mahalanobis_squared(residuals[k], covariances[k])
+        )
+        assert assoc.gaussian_log_density_batch(residuals, covariances)[k] == pytest.approx(
+            assoc.gaussian_log_density(residuals[k], covariances[k])
+        )

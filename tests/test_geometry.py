@@ -174,3 +174,15 @@ def test_unit3_range_covariance_of_hand_computed_case():
     cov = np.diag([0.02**2, 0.03**2, 0.25])
     mapped = unit3_range_covariance(0.5, np.pi / 3, cov)
     np.testing.assert_allclose(mapped, np.diag([0.03**2, 0.03**2, 0.25]), atol=1e-12)
+
+
+def test_batched_point_prediction_matches_one_by_one():
+    pose = random_pose()
+    landmarks = pose.transformFrom(np.array([8.0, 1.0, 0.5])) + RNG.normal(size=(6, 3))
+    R, t = pose.rotation().matrix(), pose.translation()
+    z, H_pose, H_lm = g.predict_point_jacobians_batch(R, t, landmarks)
+    for k, landmark in enumerate(landmarks):
+        z1, H_pose1, H_lm1 = g.predict_point(R, t, landmark)
+        np.testing.assert_allclose(z[k], z1, atol=1e-12)
+        np.testing.assert_allclose(H_pose[k], H_pose1, atol=1e-12)
+        np.testing.assert_allclose(H_lm[k], H_lm1, atol=1e-12)

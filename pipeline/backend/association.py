@@ -42,6 +42,19 @@ def gaussian_log_density(residual: np.ndarray, covariance: np.ndarray) -> float:
     return -0.5 * (float(y @ y) + log_det + residual.size * LOG_2PI)
 
 
+def mahalanobis_squared_batch(residuals: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """`mahalanobis_squared` of (k, d) residuals under (k, d, d) covariances."""
+    solved = np.linalg.solve(covariances, residuals[..., None])[..., 0]
+    return np.einsum("ki,ki->k", residuals, solved)
+
+
+def gaussian_log_density_batch(residuals: np.ndarray, covariances: np.ndarray) -> np.ndarray:
+    """`gaussian_log_density` of (k, d) residuals under (k, d, d) covariances."""
+    _, log_det = np.linalg.slogdet(covariances)
+    dim = residuals.shape[-1]
+    return -0.5 * (mahalanobis_squared_batch(residuals, covariances) + log_det + dim * LOG_2PI)
+
+
 def semantic_likelihood(
     confusion: np.ndarray, reported_class: int, class_probabilities: np.ndarray
 ) -> float:

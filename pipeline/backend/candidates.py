@@ -21,9 +21,10 @@ from pipeline.backend.geometry import (
     point_residual,
     pose_residual_batch,
     pose_residual_jacobians,
-    predict_point,
+    predict_point_jacobians_batch,
     world_point_jacobian_pose,
 )
+from pipeline.backend.hypotheses import EstimateCache
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.solver import Isam2Solver
@@ -106,13 +107,19 @@ class CandidateScorer:
         if not measurements or len(self.landmarks) == 0:
             return [Candidates.none() for _ in measurements]
         pose_cov = prediction.covariance(self.solver.marginal_covariance(prediction.anchor_key))
+        nearby = []
+        for m in measurements:
+            center, radius = search_radius(
+                prediction, pose_cov, m, self.config.search_sigmas, self.config.search_margin_m
+            )
+            nearby.append(self.landmarks.near(m.kind, center, radius))
+        estimates = EstimateCache(self.solver, self.landmarks.is_pose)
+        estimates.fetch([], set().union(*nearby))
         joints: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # shared by the keyframe's detections
-        return [self._score_one(prediction, pose_cov, m, joints) for m in measurements]
-
-    def _estimate(self, landmark_id: int):
-        if self.landmarks.landmarks[landmark_id].kind is LandmarkKind.POSE:
-            return self.solver.pose(L(landmark_id))
-        return self.solver.point(L(landmark_id))
+        return [
+            self._score_one(prediction, pose_cov, m, ids, estimates, joints)
+            for m, ids in zip(measurements, nearby, strict=True)
+        ]
 
     def _landmark_covariance_bound(self, landmark_id: int) -> np.ndarray:
         """The landmark's marginal covariance as last computed. It only shrinks as factors come
@@ -142,76 +149,87 @@ class CandidateScorer:
         return joints[landmark_id]
 
     def _score_one(
-        self, prediction: PosePrediction, pose_cov: np.ndarray, m: Measurement, joints: dict
+        self,
+        prediction: PosePrediction,
+        pose_cov: np.ndarray,
+        m: Measurement,
+        ids: list[int],
+        estimates: EstimateCache,
+        joints: dict,
     ) -> Candidates:
-        center, radius = search_radius(
-            prediction, pose_cov, m, self.config.search_sigmas, self.config.search_margin_m
-        )
-        ids = self.landmarks.near(m.kind, center, radius)
         if not ids:
             return Candidates.none()
-        gate = assoc.chi2_gate(m.dim, self.config.chi2_confidence)
-        R_x = prediction.pose.rotation().matrix()
-        t_x = prediction.pose.translation()
+        searched = len(ids)
         column = self.confusion[:, m.detection.class_id]
-        # First pass, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma
+        semantic = np.array([column @ self.landmarks.landmarks[j].class_probabilities for j in ids])
+        # A class the detector never confuses with this one: weight zero, no need to look.
+        ids = [j for j, s in zip(ids, semantic, strict=True) if s > 0.0]
+        semantic = semantic[semantic > 0.0]
+        if not ids:
+            return Candidates.none(searched)
+        gate = assoc.chi2_gate(m.dim, self.config.chi2_confidence)
+        residual, H_x, H_l = self._residuals(m, prediction, ids, estimates)
+        pose_part = H_x @ pose_cov @ np.swapaxes(H_x, 1, 2)
+        # First, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma,
         # whatever the pose-landmark correlation, which bounds each Mahalanobis distance from
         # both sides. A landmark failing the gate under the larger R fails it for sure.
-        plausible = []
-        for j in ids:
-            semantic = float(column @ self.landmarks.landmarks[j].class_probabilities)
-            if semantic <= 0.0:
-                continue  # a class the detector never confuses with this one: weight zero
-            residual, H_x, H_l = self._residual(m, R_x, t_x, self._estimate(j))
-            pose_part = H_x @ pose_cov @ H_x.T
-            bound = 2.0 * (pose_part + H_l @ self._landmark_covariance_bound(j) @ H_l.T)
-            if assoc.mahalanobis_squared(residual, bound + m.covariance) > gate:
-                continue
-            plausible.append((j, semantic, residual, H_x, H_l, pose_part))
-        if not plausible:
-            return Candidates.none(len(ids))
+        landmark_cov = np.stack([self._landmark_covariance_bound(j) for j in ids])
+        landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
+        bound = 2.0 * (pose_part + landmark_part) + m.covariance
+        plausible = np.flatnonzero(assoc.mahalanobis_squared_batch(residual, bound) <= gate)
+        if len(plausible) == 0:
+            return Candidates.none(searched)
         if len(plausible) == 1:
-            j, semantic, residual, *_ = plausible[0]
-            if assoc.mahalanobis_squared(residual, m.covariance) <= gate:
+            k = plausible[0]
+            if assoc.mahalanobis_squared(residual[k], m.covariance) <= gate:
                 # Passes even under the smaller R and has no rival: weight 1, whatever R is.
                 return Candidates(
-                    np.array([j]), np.ones(1), np.array([semantic]), np.full(1, np.nan), len(ids)
+                    np.array([ids[k]]), np.ones(1), semantic[[k]], np.full(1, np.nan), searched
                 )
 
-        kept, log_geo, semantics, maha = [], [], [], []
-        for j, semantic, residual, H_x, H_l, pose_part in plausible:
-            sigma_xl, sigma_ll = self._joint(prediction, j, joints)
-            cross = H_x @ sigma_xl @ H_l.T
-            HSH = pose_part + cross + cross.T + H_l @ sigma_ll @ H_l.T
-            R = 0.5 * (HSH + HSH.T) + m.covariance
-            d2 = assoc.mahalanobis_squared(residual, R)
-            if d2 > gate:
-                continue
-            kept.append(j)
-            maha.append(d2)
-            log_geo.append(assoc.gaussian_log_density(residual, R))
-            semantics.append(semantic)
-        if not kept:
-            return Candidates.none(len(ids))
-        weights = assoc.association_weights(np.array(log_geo), np.array(semantics))
+        sigmas = [self._joint(prediction, ids[k], joints) for k in plausible]
+        sigma_xl = np.stack([s[0] for s in sigmas])
+        sigma_ll = np.stack([s[1] for s in sigmas])
+        hx, hl = H_x[plausible], H_l[plausible]
+        cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
+        R = (
+            pose_part[plausible]
+            + cross
+            + np.swapaxes(cross, 1, 2)
+            + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
+            + m.covariance
+        )
+        R = 0.5 * (R + np.swapaxes(R, 1, 2))
+        d2 = assoc.mahalanobis_squared_batch(residual[plausible], R)
+        passed = d2 <= gate
+        if not np.any(passed):
+            return Candidates.none(searched)
+        chosen = plausible[passed]
+        log_geo = assoc.gaussian_log_density_batch(residual[chosen], R[passed])
+        weights = assoc.association_weights(log_geo, semantic[chosen])
         keep = weights >= self.config.min_weight
-        weights = weights[keep] / weights[keep].sum()
         return Candidates(
-            landmark_ids=np.array(kept)[keep],
-            weights=weights,
-            semantic=np.array(semantics)[keep],
-            mahalanobis_sq=np.array(maha)[keep],
-            searched=len(ids),
+            landmark_ids=np.array(ids)[chosen][keep],
+            weights=weights[keep] / weights[keep].sum(),
+            semantic=semantic[chosen][keep],
+            mahalanobis_sq=d2[passed][keep],
+            searched=searched,
         )
 
     @staticmethod
-    def _residual(m: Measurement, R_x, t_x, landmark) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _residuals(
+        m: Measurement, prediction: PosePrediction, ids: list[int], estimates: EstimateCache
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Residual h(x, l) - z and Jacobians for each candidate, stacked."""
+        R_x = prediction.pose.rotation().matrix()
+        t_x = prediction.pose.translation()
+        rows = estimates.rows([L(j) for j in ids])
         if m.kind is LandmarkKind.POSE:
-            R_l, t_l = landmark.rotation().matrix(), landmark.translation()
+            R_l, t_l = rows[:, :9].reshape(-1, 3, 3), rows[:, 9:]
             residual = pose_residual_batch(
                 R_x, t_x, R_l, t_l, m.relative_rotation, m.relative_translation
             )
             H_x, H_l = pose_residual_jacobians(R_x, t_x, R_l, t_l)
             return residual, H_x, H_l
-        z_pred, H_x, H_l = predict_point(R_x, t_x, np.asarray(landmark))
+        z_pred, H_x, H_l = predict_point_jacobians_batch(R_x, t_x, rows[:, 9:])
         return point_residual(z_pred, m.vector), H_x, H_l

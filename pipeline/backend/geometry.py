@@ -117,6 +117,17 @@ def predict_point(
     return bearing_elevation_range(p_body), J @ dp_dpose, J @ R.T
 
 
+def predict_point_jacobians_batch(
+    R: np.ndarray, t: np.ndarray, landmarks: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`predict_point` for one pose and (k, 3) landmarks: z (k, 3), H_pose (k, 3, 6),
+    H_landmark (k, 3, 3)."""
+    p_body = (np.asarray(landmarks) - t) @ R  # rows: R^T (l - t)
+    J = bearing_elevation_range_jacobian(p_body)
+    dp_dpose = np.concatenate([skew(p_body), np.broadcast_to(-np.eye(3), J.shape)], axis=-1)
+    return bearing_elevation_range(p_body), J @ dp_dpose, J @ R.T
+
+
 def world_point_jacobian_pose(R: np.ndarray, p_body: np.ndarray) -> np.ndarray:
     """d(R p_body + t) / d(pose tangent), 3x6: where a measured point lands, moved by the pose."""
     return R @ np.hstack([-skew(p_body), np.eye(3)])
@@ -185,24 +196,28 @@ def pose_residual_batch(
 
 
 def adjoint(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Adjoint of a pose in (rotation, translation) tangent order, 6x6."""
-    out = np.zeros((6, 6))
-    out[:3, :3] = R
-    out[3:, 3:] = R
-    out[3:, :3] = skew(t) @ R
+    """Adjoint of a pose (or (k,) poses) in (rotation, translation) tangent order, 6x6."""
+    R = np.asarray(R, dtype=float)
+    out = np.zeros((*R.shape[:-2], 6, 6))
+    out[..., :3, :3] = R
+    out[..., 3:, 3:] = R
+    out[..., 3:, :3] = skew(t) @ R
     return out
 
 
 def pose_residual_jacobians(
     R_x: np.ndarray, t_x: np.ndarray, R_l: np.ndarray, t_l: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """First-order Jacobians of X^-1 L in the tangent of the relative pose: (H_x, H_l).
+    """First-order Jacobians of X^-1 L in the tangent of the relative pose: (H_x, H_l), for one
+    pose X and one or (k,) landmarks L.
 
     The residual's own Log Jacobian is the identity at zero residual, which is where it is used
     (innovation covariance of an association), so it is left out.
     """
     R_rel = R_x.T @ R_l
-    t_rel = R_x.T @ (t_l - t_x)
-    # X^-1 L Exp(d) = X^-1 L Exp(d);  (X Exp(d))^-1 L = Exp(-d) X^-1 L = (X^-1 L) Exp(-Ad(rel^-1) d)
-    R_inv, t_inv = R_rel.T, -R_rel.T @ t_rel
-    return -adjoint(R_inv, t_inv), np.eye(6)
+    t_rel = (t_l - t_x) @ R_x  # rows: R_x^T (t_l - t_x)
+    # (X Exp(d))^-1 L = Exp(-d) X^-1 L = (X^-1 L) Exp(-Ad(rel^-1) d)
+    R_inv = np.swapaxes(R_rel, -1, -2)
+    t_inv = -np.einsum("...ij,...j->...i", R_inv, t_rel)
+    H_x = -adjoint(R_inv, t_inv)
+    return H_x, np.broadcast_to(np.eye(6), H_x.shape).copy()

@@ -164,3 +164,14 @@ def test_same_input_gives_byte_identical_outputs(tmp_path, square_scene, method)
     a.pop("runtime_s")
     b.pop("runtime_s")
     assert a == b
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_keyframes_without_detections_before_the_first_landmark(tmp_path, method):
+    landmarks = np.array([[12.0, 2.0, 0.0], [14.0, -2.0, 0.0]])
+    scene = Scene(square_loop(8.0, 1.0, laps=0.5), landmarks, np.array([0, 1]))
+    scene.sightings = [(i, j) for i in range(4, 9) for j in range(2)]  # none at poses 0-3
+    log = write_scene(tmp_path / "late.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    result = replay(log, method, tmp_path / method, load_config(), progress=False)
+    assert result.num_landmarks == 2
+    assert result.metrics["association"]["correct"] == 10

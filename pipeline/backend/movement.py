@@ -52,11 +52,9 @@ class MovementTracker:
 
         self._poses = self._grow(self._poses, int(index[is_robot].max(initial=-1)) + 1)
         self._landmarks = self._grow(self._landmarks, int(index[~is_robot].max(initial=-1)) + 1)
-        last = np.where(
-            is_robot[:, None],
-            self._poses[np.where(is_robot, index, 0)],
-            self._landmarks[np.where(is_robot, 0, index)],
-        )
+        last = np.full_like(current, np.nan)
+        last[is_robot] = self._poses[index[is_robot]]
+        last[~is_robot] = self._landmarks[index[~is_robot]]
         with np.errstate(invalid="ignore"):
             stayed = np.max(np.abs(current - last), axis=1) <= self.threshold  # NaN: new
         moved = ~stayed

@@ -87,19 +87,16 @@ class MaxMixture(MixtureMethod):
 
     def _best(self, records: list[AssociationRecord], estimates) -> list[int]:
         """Index of each record's winning component (NULL for the null hypothesis)."""
-        best = []
         mahalanobis = component_mahalanobis(records, estimates)
-        for record, maha in zip(records, mahalanobis, strict=True):
-            nll = component_nll(np.log(record.weights), maha, record.measurement.log_normaliser)
-            winner = int(np.argmin(nll))
+        # One row a record: its components' negative log-likelihoods, then the null's.
+        table = np.full((len(records), 1 + max(len(m) for m in mahalanobis)), np.inf)
+        for row, record, maha in zip(table, records, mahalanobis, strict=True):
+            m = record.measurement
+            row[: len(maha)] = component_nll(np.log(record.weights), maha, m.log_normaliser)
             if record.null_weight > 0:
-                null_nll = null_component_nll(
-                    record.null_weight, self.null_sigma, record.measurement.dim
-                )
-                if null_nll < nll[winner]:
-                    winner = NULL
-            best.append(winner)
-        return best
+                row[-1] = null_component_nll(record.null_weight, self.null_sigma, m.dim)
+        best = np.argmin(table, axis=1)
+        return [NULL if b == table.shape[1] - 1 else int(b) for b in best]
 
     def refine(self, moved: set[int]) -> list[AssociationRecord]:
         """Swap in the winning component wherever it changed, until none changes."""

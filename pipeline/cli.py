@@ -57,9 +57,23 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
 def _cmd_frontend(args: argparse.Namespace) -> int:
     from pipeline.frontend.run import run_frontend
 
-    summary = run_frontend(
-        args.sequence, args.out, args.config, images=args.images, progress=not args.quiet
-    )
+    sink = None
+    if args.rrd or args.spawn or args.connect:
+        from pipeline.viz import sink_from_options
+
+        sink = sink_from_options(args.rrd, args.spawn, args.connect, "mmslam frontend")
+    try:
+        summary = run_frontend(
+            args.sequence,
+            args.out,
+            args.config,
+            images=args.images,
+            progress=not args.quiet,
+            sink=sink,
+        )
+    finally:
+        if sink is not None:
+            sink.close()
     print(summary.summary_line())
     return 0
 
@@ -130,6 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
     frontend.add_argument("--quiet", action="store_true", help="no progress bars")
+    _add_viz_options(frontend)
     frontend.set_defaults(run=_cmd_frontend)
 
     inspect = commands.add_parser("inspect", help="what a log holds, and whether it is valid")

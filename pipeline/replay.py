@@ -64,18 +64,7 @@ def keyframes(log: DetectionLog) -> Iterator[tuple[Odometry | None, list[Detecti
 
 
 def pose_stamps_s(log: DetectionLog) -> np.ndarray:
-    """A time for every pose: odometry stamps for poses 1.., pose 0 from its ground truth or
-    detections, else from the first odometry."""
-    stamps = [0] * log.num_poses
-    for odometry in log.odometry:
-        stamps[odometry.to_index] = odometry.stamp_ns
-    first = [m.stamp_ns for m in log.ground_truth_poses if m.pose_index == 0]
-    first += [m.stamp_ns for m in log.detections if m.pose_index == 0]
-    if first:
-        stamps[0] = first[0]
-    elif log.odometry:
-        stamps[0] = log.odometry[0].stamp_ns
-    return np.array(stamps, dtype=np.int64) / 1e9
+    return np.array(log.pose_stamps_ns(), dtype=np.int64) / 1e9
 
 
 def _check_inputs(log: DetectionLog, method: str) -> None:
@@ -185,9 +174,9 @@ def replay(
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"--out {out_dir}: exists and is not a directory")
-    log = read_log(log_path, load_images=sink.wants_images)
-    _check_inputs(log, method)
     try:
+        log = read_log(log_path, load_images=sink.wants_images)
+        _check_inputs(log, method)
         sink.start(log, method)
         start = time.perf_counter()
         backend = run_backend(log, method, config, sink, progress)

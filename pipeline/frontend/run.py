@@ -16,7 +16,7 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from pipeline.log import (
     StereoCalibration,
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
+
+if TYPE_CHECKING:
+    from pipeline.viz.frontend import FrontendSink
 
 log = logging.getLogger(__name__)
 
@@ -119,14 +122,19 @@ def run_apriltags(
     config: FrontendConfig,
     truth_ids: dict[int, int] | None,
     progress: bool,
+    outlines: list[list[tuple[int, np.ndarray]]] | None = None,
 ) -> list[list[Detection]]:
-    """The tag detections of every keyframe."""
+    """The tag detections of every keyframe; with `outlines`, each keyframe's (tag id, corners)
+    are appended to it too (for a viewer)."""
     detector = AprilTagDetector(config.apriltags, sequence.intrinsics)
     per_keyframe = []
     for frame in _progress(keyframes, progress, "apriltags", len(keyframes)):
         left, right = sequence[frame]
         detections = []
-        for observation in detector.observe(left, right):
+        observations = detector.observe(left, right)
+        if outlines is not None:
+            outlines.append([(o.tag_id, o.corners) for o in observations])
+        for observation in observations:
             truth = None if truth_ids is None else truth_ids.get(observation.tag_id, -1)
             detections.append(
                 tag_detection(
@@ -354,11 +362,13 @@ def run_frontend(
     *,
     images: bool = False,
     progress: bool = True,
+    sink: FrontendSink | None = None,
 ) -> FrontendSummary:
     """Turn a stereo sequence (KITTI or plain layout) into a contract-v1 log at `out`.
 
     `images` (or `[output] images` in the config) also writes the keyframes' images;
-    `progress` shows a progress bar per stage when stderr is a terminal.
+    `progress` shows a progress bar per stage when stderr is a terminal; `sink` (a Rerun sink,
+    `pipeline/viz`) is shown every keyframe once the stages are done. The caller closes it.
     """
     import cv2
 
@@ -378,10 +388,11 @@ def run_frontend(
         keyframes = run_odometry(sequence, config, progress)
     log.info("visual odometry: %d keyframes of %d frames", len(keyframes.frames), len(sequence))
     tags: list[list[Detection]] = [[] for _ in keyframes.frames]
+    outlines: list[list[tuple[int, np.ndarray]]] | None = [] if sink is not None else None
     if config.apriltags.enabled:
         with _timed(seconds, "apriltags"):
             truth_ids = None if truth is None else tag_truth_ids(truth)
-            tags = run_apriltags(sequence, keyframes.frames, config, truth_ids, progress)
+            tags = run_apriltags(sequence, keyframes.frames, config, truth_ids, progress, outlines)
     boxes: list[list[Detection]] = [[] for _ in keyframes.frames]
     if object_stage is not None:
         with _timed(seconds, "objects"):
@@ -406,6 +417,13 @@ def run_frontend(
             for name in getattr(object_stage, "class_names", ())
         }
         truth_message = landmarks_message(truth, config.classes.num_classes, object_classes, 0)
+    if sink is not None:
+        from pipeline.viz.frontend import show_keyframes
+
+        with _timed(seconds, "viz"):
+            found = [t + b for t, b in zip(tags, boxes, strict=True)]
+            stamps = stamps_ns(sequence.times)
+            show_keyframes(sink, sequence, keyframes, stamps, outlines or [], found, metadata)
     with _timed(seconds, "write"):
         write_log(
             out,

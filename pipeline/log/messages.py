@@ -130,3 +130,17 @@ class DetectionLog:
     @property
     def has_ground_truth(self) -> bool:
         return len(self.ground_truth_poses) > 0
+
+    def pose_stamps_ns(self) -> list[int]:
+        """A time for every pose: the odometry that reaches it for poses 1..; pose 0 from its
+        ground truth or detections, else from the first odometry."""
+        stamps = [0] * self.num_poses
+        for odometry in self.odometry:
+            stamps[odometry.to_index] = odometry.stamp_ns
+        first = [m.stamp_ns for m in self.ground_truth_poses if m.pose_index == 0]
+        first += [m.stamp_ns for m in self.detections if m.pose_index == 0]
+        if first:
+            stamps[0] = first[0]
+        elif self.odometry:
+            stamps[0] = self.odometry[0].stamp_ns
+        return stamps

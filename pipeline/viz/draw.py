@@ -1,0 +1,216 @@
+"""What a recording draws, computed from a run: pure functions on numpy, no Rerun.
+
+Colours per class, uncertainty ellipsoids from covariances, each detection's hypotheses with
+their weights and winner, and the reference trajectories (ground truth aligned at pose 0, dead
+reckoning) that the estimate is shown against.
+"""
+
+from __future__ import annotations
+
+import colorsys
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.backend.association import chi2_gate
+from pipeline.backend.candidates import Candidates
+from pipeline.backend.geometry import rotation_from_quaternion
+from pipeline.backend.hypotheses import NULL, AssociationRecord
+from pipeline.log.messages import GroundTruthPose, Odometry
+
+# Qualitative colours for the first classes (chosen to stay apart from the hypothesis colours
+# below); further classes take hues spaced by the golden angle.
+_PALETTE = np.array(
+    [
+        [31, 119, 180],  # blue
+        [255, 127, 14],  # orange
+        [148, 103, 189],  # purple
+        [23, 190, 207],  # cyan
+        [227, 119, 194],  # pink
+        [188, 189, 34],  # olive
+        [140, 86, 75],  # brown
+        [44, 160, 44],  # green
+    ],
+    dtype=np.uint8,
+)
+
+# Hypothesis lines: the winner stands out, losers are thin and grey, the null hypothesis red.
+WINNER_RGB = (60, 220, 90)
+NEW_LANDMARK_RGB = (90, 170, 255)
+LOSER_RGB = (150, 150, 150)
+NULL_WINNER_RGB = (235, 50, 50)
+NULL_LOSER_RGB = (150, 80, 80)
+SWITCH_RGB = (255, 190, 0)
+
+
+def packed_rgba(rgb, alpha: int = 255) -> np.ndarray:
+    """Colours (..., 3) as 0xRRGGBBAA uint32: the form Rerun takes without conversion."""
+    rgb = np.asarray(rgb, dtype=np.uint32)
+    return (rgb[..., 0] << 24) | (rgb[..., 1] << 16) | (rgb[..., 2] << 8) | np.uint32(alpha)
+
+
+def class_colors(num_classes: int) -> np.ndarray:
+    """(C, 3) uint8: a distinct, deterministic colour per class."""
+    colours = [_PALETTE[c] for c in range(min(num_classes, len(_PALETTE)))]
+    golden = 0.618033988749895
+    for c in range(len(_PALETTE), num_classes):
+        hue = (0.11 + c * golden) % 1.0
+        colours.append(np.array(colorsys.hsv_to_rgb(hue, 0.65, 0.9)) * 255)
+    return np.array(colours, dtype=np.uint8).reshape(num_classes, 3)
+
+
+def position_covariance(covariance: np.ndarray, rotation: np.ndarray | None = None) -> np.ndarray:
+    """The 3x3 world-frame covariance of a landmark's position: a point's marginal as is; for a
+    Pose3 landmark, the translation block of its 6x6 marginal (tangent order rx ry rz tx ty tz,
+    perturbed in its own frame), rotated into the world by its rotation."""
+    covariance = np.asarray(covariance, dtype=float)
+    if covariance.shape == (3, 3):
+        return covariance
+    if covariance.shape != (6, 6) or rotation is None:
+        raise ValueError("a 3x3 covariance, or a 6x6 one with the landmark's rotation")
+    R = np.asarray(rotation, dtype=float)
+    return R @ covariance[3:, 3:] @ R.T
+
+
+def quaternion_xyzw(R: np.ndarray) -> np.ndarray:
+    """A rotation matrix to [x, y, z, w] (Shepperd's method: divide by the largest of the four
+    squared components). Here, not scipy's: it is called per landmark per keyframe."""
+    R = np.asarray(R, dtype=float)
+    trace = R[0, 0] + R[1, 1] + R[2, 2]
+    squares = [1 + 2 * R[0, 0] - trace, 1 + 2 * R[1, 1] - trace, 1 + 2 * R[2, 2] - trace, 1 + trace]
+    k = int(np.argmax(squares))
+    q = np.empty(4)
+    q[k] = 0.5 * np.sqrt(max(squares[k], 0.0))
+    s = 0.25 / q[k]
+    if k == 3:
+        q[:3] = s * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    elif k == 0:
+        q[1:] = s * np.array([R[0, 1] + R[1, 0], R[0, 2] + R[2, 0], R[2, 1] - R[1, 2]])
+    elif k == 1:
+        q[[0, 2, 3]] = s * np.array([R[0, 1] + R[1, 0], R[1, 2] + R[2, 1], R[0, 2] - R[2, 0]])
+    else:
+        q[[0, 1, 3]] = s * np.array([R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], R[1, 0] - R[0, 1]])
+    return q if q[3] >= 0 else -q
+
+
+@functools.cache
+def ellipsoid_scale(confidence: float) -> float:
+    """Standard deviations to the surface of the ellipsoid holding `confidence` (3 dof)."""
+    return float(np.sqrt(chi2_gate(3, confidence)))
+
+
+def ellipsoid(covariance: np.ndarray, confidence: float) -> tuple[np.ndarray, np.ndarray]:
+    """Half-axes and orientation ([x, y, z, w]) of the ellipsoid holding `confidence` of a 3-D
+    Gaussian with this covariance: R diag(half_sizes^2) R^T = k^2 covariance, k^2 the
+    chi-square quantile with 3 dof."""
+    covariance = np.asarray(covariance, dtype=float)
+    values, vectors = np.linalg.eigh(0.5 * (covariance + covariance.T))
+    if np.linalg.det(vectors) < 0:  # eigh may return a reflection; the axes are the same
+        vectors[:, 0] = -vectors[:, 0]
+    half_sizes = ellipsoid_scale(confidence) * np.sqrt(np.clip(values, 0.0, None))
+    return half_sizes, quaternion_xyzw(vectors)
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """One line of the association view: a detection and one landmark it may be (or none)."""
+
+    detection_index: int
+    landmark_id: int  # NULL for the null hypothesis
+    weight: float
+    winner: bool
+    new_landmark: bool  # the detection made this landmark: nothing in the map matched it
+
+
+def detection_hypotheses(
+    record: AssociationRecord, candidates: Candidates, created: bool
+) -> list[Hypothesis]:
+    """Every landmark a detection was weighed against, with its weight, and which one won.
+
+    GPDA's record keeps the current EM weights; a mixture keeps its components; ML commits to
+    one landmark but weighed all the candidates; a detection without candidates is a new
+    landmark (or, with `known`, the true one). The null hypothesis comes last where it is a
+    component. `created`: the record's landmark was made by this detection."""
+    if record.graph_weights is not None:
+        ids, weights = list(record.landmark_ids), np.asarray(record.graph_weights, dtype=float)
+    elif len(candidates) > len(record.landmark_ids):
+        ids, weights = [int(j) for j in candidates.landmark_ids], candidates.weights
+    else:
+        ids, weights = list(record.landmark_ids), np.asarray(record.weights, dtype=float)
+    winner = record.landmark_id
+    k = record.measurement.detection_index
+    out = [
+        Hypothesis(k, int(j), float(w), int(j) == winner, created and int(j) == winner)
+        for j, w in zip(ids, weights, strict=True)
+    ]
+    if record.null_weight > 0:
+        out.append(Hypothesis(k, NULL, float(record.null_weight), winner == NULL, False))
+    return out
+
+
+def hypothesis_style(h: Hypothesis) -> tuple[tuple[int, int, int], float]:
+    """Colour and width (UI points) of a hypothesis line: wider with weight, winner brightest."""
+    if h.landmark_id == NULL:
+        colour = NULL_WINNER_RGB if h.winner else NULL_LOSER_RGB
+    elif h.winner:
+        colour = NEW_LANDMARK_RGB if h.new_landmark else WINNER_RGB
+    else:
+        colour = LOSER_RGB
+    width = (2.5 if h.winner else 0.75) + 2.0 * min(max(h.weight, 0.0), 1.0)
+    return colour, width
+
+
+def hypothesis_label(h: Hypothesis) -> str:
+    target = "null" if h.landmark_id == NULL else f"L{h.landmark_id}"
+    mark = " (new)" if h.new_landmark else ""
+    return f"d{h.detection_index}→{target}{mark} {h.weight:.2f}"
+
+
+def landmark_label(landmark_id: int, class_name: str, probability: float) -> str:
+    return f"L{landmark_id} {class_name} {probability:.2f}"
+
+
+def _matrix(translation, rotation) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = rotation_from_quaternion(np.asarray(rotation, dtype=float))
+    T[:3, 3] = translation
+    return T
+
+
+def ground_truth_alignment(poses: list[GroundTruthPose]) -> np.ndarray | None:
+    """The transform taking ground truth into the estimate's frame, where pose 0 is the origin
+    (the contract's alignment at the first pose); None without a ground-truth pose 0."""
+    for message in poses:
+        if message.pose_index == 0:
+            return np.linalg.inv(_matrix(message.translation, message.rotation))
+    return None
+
+
+def aligned_ground_truth(
+    poses: list[GroundTruthPose], alignment: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose indices and aligned positions (N, 3) of the ground-truth poses, in index order."""
+    ordered = sorted(poses, key=lambda m: m.pose_index)
+    indices = np.array([m.pose_index for m in ordered], dtype=int)
+    if not ordered:
+        return indices, np.zeros((0, 3))
+    positions = np.array([m.translation for m in ordered], dtype=float)
+    return indices, positions @ alignment[:3, :3].T + alignment[:3, 3]
+
+
+def dead_reckoning(odometry: list[Odometry]) -> np.ndarray:
+    """Positions (N + 1, 3) of the poses the odometry alone gives, from the origin."""
+    pose = np.eye(4)
+    positions = [pose[:3, 3].copy()]
+    for step in odometry:
+        pose = pose @ _matrix(step.translation, step.rotation)
+        positions.append(pose[:3, 3].copy())
+    return np.array(positions)
+
+
+def body_to_world(rows: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points in the body frame of poses given as flat rows [R (9, row-major), t (3)]."""
+    rows = np.atleast_2d(rows)
+    R = rows[:, :9].reshape(-1, 3, 3)
+    return np.einsum("nij,nj->ni", R, np.atleast_2d(points)) + rows[:, 9:]

@@ -1,0 +1,57 @@
+"""The entity paths of an mmslam recording: the sink writes them, the blueprint lays them out,
+and the tests read them back. World frame Z-up (REP-103: x forward, y left, z up)."""
+
+from __future__ import annotations
+
+WORLD = "/world"
+# The newest pose (Transform3D + axes); its children are in the body frame.
+ROBOT = "/world/robot"
+ROBOT_DETECTIONS = "/world/robot/detections"  # front-end: a keyframe's detections, body frame
+
+TRAJECTORY = "/world/trajectory/estimate"  # all poses as of the last refresh
+TRAJECTORY_RECENT = "/world/trajectory/recent"  # the poses since then, every keyframe
+GROUND_TRUTH_TRAJECTORY = "/world/trajectory/ground_truth"  # aligned at pose 0
+ODOMETRY_TRAJECTORY = "/world/trajectory/odometry"  # dead reckoning from pose 0
+GROUND_TRUTH_LANDMARKS = "/world/ground_truth/landmarks"
+
+# One child a landmark, /world/landmarks/<id>: its point (coloured and labelled by MAP class)
+# and its uncertainty ellipsoid, logged together (one call a landmark).
+LANDMARKS = "/world/landmarks"
+
+# This keyframe's detections: a line from the pose to every landmark each may be (and to its
+# measured point for the null hypothesis), and the measured points themselves.
+HYPOTHESES = "/world/associations/hypotheses"
+NULL_WINS = "/world/associations/null"  # detections the null hypothesis took this keyframe
+SWITCHES = "/world/associations/switches"  # records whose landmark changed this keyframe
+REJECTED = "/world/associations/rejected"  # at the end: every detection left to the null
+
+CAMERA = "/camera/left"
+CAMERA_DETECTIONS = "/camera/left/detections"  # boxes, labelled with class and association
+CAMERA_TAGS = "/camera/left/tags"  # tag outlines (front-end)
+
+EVENTS = "/events"  # text: null-hypothesis wins and association switches
+SUMMARY = "/summary"  # text: the run's metrics, at the end
+
+METRICS = "/metrics"
+ERROR_ONLINE = "/metrics/translation_error/online"  # newest pose when it was added
+ERROR_FINAL = "/metrics/translation_error/final"  # every pose in the final estimate
+LANDMARK_COUNT = "/metrics/counts/landmarks"
+SWITCH_COUNT = "/metrics/counts/switches"  # cumulative
+NULL_RATE = "/metrics/null_rate"  # detections associated to the null hypothesis, so far
+STEP_MS = "/metrics/time/backend_ms"
+VIZ_MS = "/metrics/time/viz_ms"
+
+# The front-end's own series
+VO_TRAJECTORY = "/world/trajectory/visual_odometry"
+VO_TRAJECTORY_RECENT = "/world/trajectory/visual_odometry_recent"
+VO_INLIERS = "/metrics/frontend/vo_inliers"
+TAG_COUNT = "/metrics/frontend/tags"
+BOX_COUNT = "/metrics/frontend/boxes"
+
+# Timelines
+POSE_TIMELINE = "pose"
+TIME_TIMELINE = "log_time"
+
+
+def landmark_path(landmark_id: int) -> str:
+    return f"{LANDMARKS}/{landmark_id}"

@@ -599,7 +599,7 @@ def test_viz_config_defaults_and_overrides(tmp_path):
         ("[viz]\nrefresh_every = 2.5\n", "must be int"),
         ("[viz]\nrefresh_every = 0\n", "refresh_every"),
         ("[viz]\nkeyframe_marginals = 1\n", "must be bool"),
-        ("[other]\n", "unknown table"),
+        ("[other]\n", "unknown key 'other'"),
     ]:
         override.write_text(text)
         with pytest.raises(InputError, match=message):

@@ -6,16 +6,14 @@ preset files.
 
 from __future__ import annotations
 
-import sys
-import tomllib
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, get_type_hints
 
+from pipeline import settings
 from pipeline.errors import InputError
 
-PRESET_DIR = Path(__file__).resolve().parents[2] / "configs" / "renderer"
-INSTALLED_PRESET_DIR = Path(sys.prefix) / "share" / "mmslam" / "configs" / "renderer"
+PRESET_DIR = settings.CONFIG_DIR / "renderer"
+INSTALLED_PRESET_DIR = settings.INSTALLED_CONFIG_DIR / "renderer"
 
 STYLES = ("street", "corridor")
 OBJECT_STYLES = ("car", "crate")
@@ -110,48 +108,14 @@ def preset_path(preset: str | Path) -> Path:
 
 def load_preset(preset: str | Path) -> RendererConfig:
     path = preset_path(preset)
-    try:
-        with open(path, "rb") as f:
-            table = tomllib.load(f)
-    except FileNotFoundError:
-        raise InputError(f"renderer preset {path}: no such file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"renderer preset {path}: not valid TOML ({exc})") from None
-    config = _build(RendererConfig, table, path, "")
+    config = settings.build(RendererConfig, settings.read_toml(path), path)
     _check(config, path)
     return config
 
 
-def _build(cls: type, table: Any, path: Path, prefix: str) -> Any:
-    """A dataclass from a TOML table: every field required, no unknown keys, types checked."""
-    if not isinstance(table, dict):
-        raise InputError(f"renderer preset {path}: '{prefix.rstrip('.')}' must be a table")
-    hints = get_type_hints(cls)
-    names = {f.name for f in fields(cls)}
-    for key in table:
-        if key not in names:
-            raise InputError(f"renderer preset {path}: unknown key '{prefix}{key}'")
-    values = {}
-    for name in names:
-        if name not in table:
-            raise InputError(f"renderer preset {path}: missing key '{prefix}{name}'")
-        value, kind = table[name], hints[name]
-        if is_dataclass(kind):
-            values[name] = _build(kind, value, path, f"{prefix}{name}.")
-            continue
-        accepted = (int, float) if kind is float else (kind,)
-        if isinstance(value, bool) is not (kind is bool) or not isinstance(value, accepted):
-            raise InputError(
-                f"renderer preset {path}: '{prefix}{name}' must be {kind.__name__}, got {value!r}"
-            )
-        values[name] = kind(value)
-    return cls(**values)
-
-
 def _check(config: RendererConfig, path: Path) -> None:
     def require(condition: bool, message: str) -> None:
-        if not condition:
-            raise InputError(f"renderer preset {path}: {message}")
+        settings.require(condition, path, message)
 
     cam, scene, tags, objects, drive = (
         config.camera,

@@ -5,16 +5,12 @@ The `[objects]` table is kept as a plain table and handed to the object stage, w
 
 from __future__ import annotations
 
-import sys
-import tomllib
-from dataclasses import dataclass, fields, is_dataclass
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, get_type_hints
 
+from pipeline import settings
 from pipeline.errors import InputError
 
-DEFAULT_FRONTEND_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "frontend.toml"
-INSTALLED_FRONTEND_CONFIG = Path(sys.prefix) / "share" / "mmslam" / "configs" / "frontend.toml"
 IMAGE_FORMATS = ("jpeg", "png")
 
 
@@ -93,68 +89,11 @@ class FrontendConfig:
     objects: dict  # the object stage's own table, checked by that stage
 
 
-def _read_toml(path: Path) -> dict[str, Any]:
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except FileNotFoundError:
-        raise InputError(f"config {path}: no such file") from None
-    except IsADirectoryError:
-        raise InputError(f"config {path}: is a directory") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"config {path}: not valid TOML ({exc})") from None
-
-
-def _merge(base: dict[str, Any], override: dict[str, Any], path: Path, prefix: str = "") -> None:
-    for key, value in override.items():
-        if prefix == "" and key == "objects" and isinstance(value, dict):
-            base[key] = {**base.get(key, {}), **value}  # keys are the object stage's to check
-            continue
-        if key not in base:
-            raise InputError(f"config {path}: unknown key '{prefix}{key}'")
-        if isinstance(base[key], dict):
-            if not isinstance(value, dict):
-                raise InputError(f"config {path}: '{prefix}{key}' must be a table")
-            _merge(base[key], value, path, f"{prefix}{key}.")
-        else:
-            base[key] = value
-
-
-def _build(cls: type, table: Any, path: Path, prefix: str) -> Any:
-    """A config dataclass from a TOML table, type-checked key by key."""
-    if not isinstance(table, dict):
-        raise InputError(f"config {path}: '{prefix.rstrip('.')}' must be a table")
-    hints = get_type_hints(cls)
-    kwargs = {}
-    for f in fields(cls):
-        if f.name not in table:
-            raise InputError(f"config {path}: missing key '{prefix}{f.name}'")
-        value, kind = table[f.name], hints[f.name]
-        if is_dataclass(kind):
-            kwargs[f.name] = _build(kind, value, path, f"{prefix}{f.name}.")
-            continue
-        accepted = (int, float) if kind is float else (kind,)
-        if isinstance(value, bool) is not (kind is bool) or not isinstance(value, accepted):
-            raise InputError(
-                f"config {path}: '{prefix}{f.name}' must be {kind.__name__}, got {value!r}"
-            )
-        kwargs[f.name] = kind(value)
-    return cls(**kwargs)
-
-
 def load_frontend_config(path: str | Path | None = None) -> FrontendConfig:
     """The front-end defaults, with the keys of `path` (if given) put over them."""
-    default_path = (
-        DEFAULT_FRONTEND_CONFIG if DEFAULT_FRONTEND_CONFIG.exists() else INSTALLED_FRONTEND_CONFIG
-    )
-    table = _read_toml(default_path)
-    table.setdefault("objects", {"enabled": False})
-    source = default_path
-    if path is not None:
-        source = Path(path)
-        _merge(table, _read_toml(source), source)
-    config = _build(FrontendConfig, table, source, "")
-    check_frontend_config(config, source)
+    default = settings.config_path("frontend.toml")
+    config = settings.load(FrontendConfig, default, path)
+    check_frontend_config(config, path if path is not None else default)
     return config
 
 

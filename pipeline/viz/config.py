@@ -2,16 +2,11 @@
 
 from __future__ import annotations
 
-import sys
-import tomllib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, get_type_hints
 
+from pipeline import settings
 from pipeline.errors import InputError
-
-DEFAULT_VIZ_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "viz.toml"
-INSTALLED_VIZ_CONFIG = Path(sys.prefix) / "share" / "mmslam" / "configs" / "viz.toml"
 
 
 @dataclass(frozen=True)
@@ -26,50 +21,16 @@ class VizConfig:
     robot_axis_length_m: float
 
 
-def _read(path: Path) -> dict[str, Any]:
-    try:
-        with open(path, "rb") as f:
-            table = tomllib.load(f)
-    except FileNotFoundError:
-        raise InputError(f"config {path}: no such file") from None
-    except OSError as exc:
-        raise InputError(f"config {path}: cannot be read ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"config {path}: not valid TOML ({exc})") from None
-    unknown = set(table) - {"viz"}
-    if unknown:
-        raise InputError(f"config {path}: unknown table '{sorted(unknown)[0]}' (only [viz])")
-    viz = table.get("viz", {})
-    if not isinstance(viz, dict):
-        raise InputError(f"config {path}: 'viz' must be a table")
-    return viz
+@dataclass(frozen=True)
+class _VizFile:
+    viz: VizConfig
 
 
 def load_viz_config(path: str | Path | None = None) -> VizConfig:
     """The defaults, with the `[viz]` keys of `path` (if given) put over them."""
-    default_path = DEFAULT_VIZ_CONFIG if DEFAULT_VIZ_CONFIG.exists() else INSTALLED_VIZ_CONFIG
-    table = _read(default_path)
-    source = default_path
-    if path is not None:
-        source = Path(path)
-        for key, value in _read(source).items():
-            if key not in table:
-                raise InputError(f"config {source}: unknown key 'viz.{key}'")
-            table[key] = value
-    hints = get_type_hints(VizConfig)
-    values: dict[str, Any] = {}
-    for f in fields(VizConfig):
-        if f.name not in table:
-            raise InputError(f"config {source}: missing key 'viz.{f.name}'")
-        value, kind = table[f.name], hints[f.name]
-        accepted = (int, float) if kind is float else (kind,)
-        if isinstance(value, bool) is not (kind is bool) or not isinstance(value, accepted):
-            raise InputError(
-                f"config {source}: 'viz.{f.name}' must be {kind.__name__}, got {value!r}"
-            )
-        values[f.name] = kind(value)
-    config = VizConfig(**values)
-    _check(config, source)
+    default = settings.config_path("viz.toml")
+    config = settings.load(_VizFile, default, path).viz
+    _check(config, Path(path) if path is not None else default)
     return config
 
 

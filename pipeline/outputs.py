@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.backend.geometry import quaternion_from_rotation
+from pipeline.geometry import quaternion_from_rotation
 from pipeline.log.mcap_io import atomic_output
 
 TRAJECTORY = "trajectory.tum"

@@ -8,7 +8,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pipeline.backend.geometry import bearing_elevation_range, quaternion_from_rotation
+from pipeline.geometry import bearing_elevation_range, quaternion_from_rotation
 from pipeline.log import (
     Detection,
     Detections,

@@ -4,6 +4,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from pipeline import geometry as lie
 from pipeline.backend import geometry as g
 from pipeline.backend.factors import point_measurement_factor, unit3_range_covariance
 from pipeline.log.messages import Detection
@@ -28,7 +29,7 @@ def numerical_jacobian(f, x0: np.ndarray, retract, dim: int, eps: float = 1e-6) 
 
 
 def test_bearing_elevation_range_of_hand_computed_points():
-    z = g.bearing_elevation_range(np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 2.0], [3.0, 0.0, 4.0]]))
+    z = lie.bearing_elevation_range(np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 2.0], [3.0, 0.0, 4.0]]))
     np.testing.assert_allclose(z[0], [np.pi / 4, 0.0, np.sqrt(2)])
     np.testing.assert_allclose(z[1, 1:], [np.pi / 2, 2.0])
     np.testing.assert_allclose(z[2], [0.0, np.arctan2(4, 3), 5.0])
@@ -37,13 +38,13 @@ def test_bearing_elevation_range_of_hand_computed_points():
 def test_point_and_measurement_round_trip():
     p = RNG.normal(size=(50, 3)) * 10
     np.testing.assert_allclose(
-        g.point_from_bearing_elevation_range(g.bearing_elevation_range(p)), p, atol=1e-9
+        lie.point_from_bearing_elevation_range(lie.bearing_elevation_range(p)), p, atol=1e-9
     )
 
 
 def test_bearing_elevation_range_jacobian_matches_numerical():
     for p in RNG.normal(size=(10, 3)) * 5:
-        J = g.bearing_elevation_range_jacobian(p)
+        J = lie.bearing_elevation_range_jacobian(p)
         J_num = numerical_jacobian(g.bearing_elevation_range, p, lambda x, d: x + d, 3)
         np.testing.assert_allclose(J, J_num, atol=1e-6)
 
@@ -74,7 +75,7 @@ def test_predict_point_batch_agrees_with_gtsam_transform():
     R = np.stack([p.rotation().matrix() for p in poses])
     t = np.stack([p.translation() for p in poses])
     expected = [
-        g.bearing_elevation_range(p.transformTo(x)) for p, x in zip(poses, points, strict=True)
+        lie.bearing_elevation_range(p.transformTo(x)) for p, x in zip(poses, points, strict=True)
     ]
     np.testing.assert_allclose(g.predict_point_batch(R, t, points), expected, atol=1e-12)
 
@@ -98,13 +99,13 @@ def test_se3_log_matches_gtsam_logmap_including_small_angles():
     for scale in (1.0, 1e-3, 1e-9):
         xi = np.concatenate([RNG.normal(size=3) * scale, RNG.normal(size=3)])
         pose = gtsam.Pose3.Expmap(xi)
-        ours = g.se3_log(pose.rotation().matrix(), pose.translation())
+        ours = lie.se3_log(pose.rotation().matrix(), pose.translation())
         np.testing.assert_allclose(ours, gtsam.Pose3.Logmap(pose), atol=1e-9)
 
 
 def test_so3_exp_inverts_log():
     w = RNG.normal(size=(6, 3))
-    np.testing.assert_allclose(g.so3_log(g.so3_exp(w)), w, atol=1e-9)
+    np.testing.assert_allclose(lie.so3_log(lie.so3_exp(w)), w, atol=1e-9)
 
 
 def test_pose_residual_matches_gtsam_between_factor_error():
@@ -141,7 +142,9 @@ def _factor_and_ours(bearing, elevation, cov, dz):
     det = Detection(0, 1.0, bearing, elevation, 8.0, tuple(cov.ravel()), "bbox")
     values = gtsam.Values()
     values.insert(0, gtsam.Pose3())
-    values.insert(1, g.point_from_bearing_elevation_range(np.array([bearing, elevation, 8.0]) + dz))
+    values.insert(
+        1, lie.point_from_bearing_elevation_range(np.array([bearing, elevation, 8.0]) + dz)
+    )
     factor = point_measurement_factor(0, 1, det)
     return 2.0 * factor.error(values), dz @ np.linalg.solve(cov, dz)
 

@@ -18,11 +18,11 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.backend.geometry import rotation_from_quaternion
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.measurements import make_measurement
 from pipeline.config import load_config
 from pipeline.errors import InputError
+from pipeline.geometry import rotation_from_quaternion
 from pipeline.log import (
     CompressedImage,
     Detection,

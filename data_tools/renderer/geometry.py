@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.geometry import invert_pose, quaternion_from_rotation
+
 
 def pixel_ray_coordinates(
     size: int, focal: float, centre: float, supersample: int = 1
@@ -56,13 +58,7 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ transform[:3, :3].T + transform[:3, 3]
 
 
-def invert_transform(transform: np.ndarray) -> np.ndarray:
-    """The inverse of a 4x4 rigid transform (rotation transposed, no general inverse)."""
-    inverse = np.eye(4)
-    rotation = transform[:3, :3]
-    inverse[:3, :3] = rotation.T
-    inverse[:3, 3] = -rotation.T @ transform[:3, 3]
-    return inverse
+invert_transform = invert_pose
 
 
 def make_transform(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
@@ -79,10 +75,7 @@ def rotation_from_yaw_pitch_roll(yaw: float, pitch: float, roll: float) -> np.nd
 
 def quaternion_xyzw(rotation: np.ndarray) -> list[float]:
     """A rotation matrix as the contract's quaternion `[x, y, z, w]` (w >= 0)."""
-    q = Rotation.from_matrix(rotation).as_quat()
-    if q[3] < 0:
-        q = -q
-    return [float(v) for v in q]
+    return quaternion_from_rotation(rotation).tolist()
 
 
 def clip_polygon_near(vertices: np.ndarray, near: float) -> np.ndarray:

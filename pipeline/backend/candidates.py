@@ -17,7 +17,6 @@ from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
 from pipeline.backend.geometry import (
-    bearing_elevation_range_jacobian,
     point_residual,
     pose_residual_batch,
     pose_residual_jacobians,
@@ -29,6 +28,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import AssociationConfig
+from pipeline.geometry import bearing_elevation_range_jacobian
 
 
 @dataclass(frozen=True)

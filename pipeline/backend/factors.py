@@ -7,7 +7,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from pipeline.backend.geometry import rotation_from_quaternion
+from pipeline.geometry import rotation_from_quaternion
 from pipeline.log.messages import Detection, Odometry, RelativePose
 
 

@@ -1,4 +1,4 @@
-"""Measurement models and their Jacobians, as pure numpy functions.
+"""The back-end's measurement models and their Jacobians, as pure numpy functions.
 
 Conventions (GTSAM's): a pose is (R, t) mapping body to world; tangent vectors are ordered
 (rotation, translation) and perturb on the right, T * Exp(xi). A point landmark is measured as
@@ -12,85 +12,14 @@ from __future__ import annotations
 
 import numpy as np
 
-_SMALL_ANGLE = 1e-8
-
-
-def skew(v: np.ndarray) -> np.ndarray:
-    """The matrix [v]x with [v]x w = v x w; works on (3,) or (N, 3)."""
-    v = np.asarray(v, dtype=float)
-    out = np.zeros((*v.shape[:-1], 3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
-    return out
-
-
-def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
-    """[x, y, z, w] to a rotation matrix; (4,) or (N, 4)."""
-    q = np.asarray(q, dtype=float)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    out = np.empty((*q.shape[:-1], 3, 3))
-    out[..., 0, 0] = 1 - 2 * (y * y + z * z)
-    out[..., 0, 1] = 2 * (x * y - z * w)
-    out[..., 0, 2] = 2 * (x * z + y * w)
-    out[..., 1, 0] = 2 * (x * y + z * w)
-    out[..., 1, 1] = 1 - 2 * (x * x + z * z)
-    out[..., 1, 2] = 2 * (y * z - x * w)
-    out[..., 2, 0] = 2 * (x * z - y * w)
-    out[..., 2, 1] = 2 * (y * z + x * w)
-    out[..., 2, 2] = 1 - 2 * (x * x + y * y)
-    return out
-
-
-def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
-    """A rotation matrix to [x, y, z, w] with w >= 0 (one matrix)."""
-    from scipy.spatial.transform import Rotation
-
-    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
-    return q if q[3] >= 0 else -q
-
-
-def bearing_elevation_range(p: np.ndarray) -> np.ndarray:
-    """Body-frame point(s) to (bearing, elevation, range)."""
-    p = np.asarray(p, dtype=float)
-    horizontal = np.hypot(p[..., 0], p[..., 1])
-    return np.stack(
-        [
-            np.arctan2(p[..., 1], p[..., 0]),
-            np.arctan2(p[..., 2], horizontal),
-            np.linalg.norm(p, axis=-1),
-        ],
-        axis=-1,
-    )
-
-
-def point_from_bearing_elevation_range(z: np.ndarray) -> np.ndarray:
-    """(bearing, elevation, range) to the body-frame point; inverse of the above."""
-    z = np.asarray(z, dtype=float)
-    b, e, r = z[..., 0], z[..., 1], z[..., 2]
-    return np.stack([r * np.cos(e) * np.cos(b), r * np.cos(e) * np.sin(b), r * np.sin(e)], axis=-1)
-
-
-def bearing_elevation_range_jacobian(p: np.ndarray) -> np.ndarray:
-    """d(bearing, elevation, range) / d(body point), 3x3 (or N x 3 x 3)."""
-    p = np.asarray(p, dtype=float)
-    x, y, z = p[..., 0], p[..., 1], p[..., 2]
-    rho2 = x * x + y * y
-    rho = np.sqrt(rho2)
-    r2 = rho2 + z * z
-    r = np.sqrt(r2)
-    J = np.zeros((*p.shape[:-1], 3, 3))
-    J[..., 0, 0], J[..., 0, 1] = -y / rho2, x / rho2
-    J[..., 1, 0] = -x * z / (rho * r2)
-    J[..., 1, 1] = -y * z / (rho * r2)
-    J[..., 1, 2] = rho / r2
-    J[..., 2, 0], J[..., 2, 1], J[..., 2, 2] = x / r, y / r, z / r
-    return J
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+from pipeline.geometry import (
+    adjoint,
+    bearing_elevation_range,
+    bearing_elevation_range_jacobian,
+    se3_log,
+    skew,
+    wrap_angle,
+)
 
 
 def point_residual(z_predicted: np.ndarray, z_measured: np.ndarray) -> np.ndarray:
@@ -133,52 +62,6 @@ def world_point_jacobian_pose(R: np.ndarray, p_body: np.ndarray) -> np.ndarray:
     return R @ np.hstack([-skew(p_body), np.eye(3)])
 
 
-# ---- SO(3) and SE(3) ----
-
-
-def so3_exp(w: np.ndarray) -> np.ndarray:
-    """Rodrigues; (3,) or (N, 3) to rotation matrices."""
-    w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = skew(w)
-    small = theta < _SMALL_ANGLE
-    safe = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5, (1 - np.cos(safe)) / safe**2)
-    return np.eye(3) + a * K + b * (K @ K)
-
-
-def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices to rotation vectors (stable near 0 and pi)."""
-    from scipy.spatial.transform import Rotation
-
-    R = np.asarray(R, dtype=float)
-    flat = R.reshape(-1, 3, 3)
-    return Rotation.from_matrix(flat).as_rotvec().reshape(*R.shape[:-2], 3)
-
-
-def so3_left_jacobian_inverse(w: np.ndarray) -> np.ndarray:
-    """V^-1 of SE(3)'s log: maps translation to the tangent's translation part."""
-    w = np.asarray(w, dtype=float)
-    theta = np.linalg.norm(w, axis=-1)[..., None, None]
-    K = skew(w)
-    small = theta < 1e-5
-    safe = np.where(small, 1.0, theta)
-    coeff = np.where(
-        small,
-        1.0 / 12.0,
-        (1.0 - safe * np.sin(safe) / (2.0 * (1.0 - np.cos(safe)))) / safe**2,
-    )
-    return np.eye(3) - 0.5 * K + coeff * (K @ K)
-
-
-def se3_log(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """SE(3) Log as GTSAM's Pose3::Logmap: (rotation vector, V^-1 t)."""
-    w = so3_log(R)
-    v = np.einsum("...ij,...j->...i", so3_left_jacobian_inverse(w), t)
-    return np.concatenate([w, v], axis=-1)
-
-
 def pose_residual_batch(
     R_x: np.ndarray,
     t_x: np.ndarray,
@@ -193,16 +76,6 @@ def pose_residual_batch(
     R_err = np.swapaxes(R_z, -1, -2) @ R_rel
     t_err = np.einsum("...ji,...j->...i", R_z, t_rel - t_z)
     return se3_log(R_err, t_err)
-
-
-def adjoint(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Adjoint of a pose (or (k,) poses) in (rotation, translation) tangent order, 6x6."""
-    R = np.asarray(R, dtype=float)
-    out = np.zeros((*R.shape[:-2], 6, 6))
-    out[..., :3, :3] = R
-    out[..., 3:, 3:] = R
-    out[..., 3:, :3] = skew(t) @ R
-    return out
 
 
 def pose_residual_jacobians(

@@ -9,9 +9,9 @@ import gtsam
 import numpy as np
 
 from pipeline.backend import factors
-from pipeline.backend.geometry import point_from_bearing_elevation_range, rotation_from_quaternion
 from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.mixture import gaussian_log_normaliser
+from pipeline.geometry import point_from_bearing_elevation_range, rotation_from_quaternion
 from pipeline.log.messages import Detection
 
 

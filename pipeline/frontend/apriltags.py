@@ -420,7 +420,7 @@ def tag_detection(
         bbox=observation.bbox,
         relative_pose=RelativePose(
             translation=tuple(float(v) for v in body_from_tag[:3, 3]),  # type: ignore[arg-type]
-            rotation=quaternion_from_rotation(body_from_tag[:3, :3]),
+            rotation=tuple(quaternion_from_rotation(body_from_tag[:3, :3]).tolist()),
             covariance=tuple(float(v) for v in observation.pose_covariance.ravel()),
         ),
         truth_landmark_id=truth_landmark_id,

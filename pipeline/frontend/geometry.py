@@ -14,6 +14,20 @@ from __future__ import annotations
 import numpy as np
 
 from pipeline.datasets.kitti import BODY_FROM_CAMERA, StereoIntrinsics
+from pipeline.geometry import (  # noqa: F401 - the shared math, re-exported for the stages
+    adjoint,
+    bearing_elevation_range,
+    bearing_elevation_range_jacobian,
+    invert_pose,
+    point_from_bearing_elevation_range,
+    quaternion_from_rotation,
+    rotation_angle,
+    rotation_from_quaternion,
+    se3_exp,
+    skew,
+    so3_exp,
+    so3_log,
+)
 
 BODY_FROM_CAMERA_ROTATION = BODY_FROM_CAMERA[:3, :3]
 
@@ -21,80 +35,10 @@ BODY_FROM_CAMERA_ROTATION = BODY_FROM_CAMERA[:3, :3]
 # --- rotations and poses ---------------------------------------------------------------------
 
 
-def skew(v: np.ndarray) -> np.ndarray:
-    """The cross-product matrix: `skew(a) @ b == cross(a, b)`."""
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-
-
-def so3_exp(omega: np.ndarray) -> np.ndarray:
-    """Rodrigues' formula: the rotation of angle |omega| about omega."""
-    theta = float(np.linalg.norm(omega))
-    k = skew(omega)
-    if theta < 1e-8:
-        return np.eye(3) + k + 0.5 * k @ k
-    return np.eye(3) + np.sin(theta) / theta * k + (1.0 - np.cos(theta)) / theta**2 * k @ k
-
-
-def so3_log(rotation: np.ndarray) -> np.ndarray:
-    """The rotation vector of a rotation matrix (angle in [0, pi])."""
-    cos_theta = np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)
-    theta = float(np.arccos(cos_theta))
-    w = np.array(
-        [
-            rotation[2, 1] - rotation[1, 2],
-            rotation[0, 2] - rotation[2, 0],
-            rotation[1, 0] - rotation[0, 1],
-        ]
-    )
-    if theta < 1e-6:
-        return 0.5 * w
-    if np.pi - theta < 1e-4:
-        # Near pi the antisymmetric part vanishes: take the axis from the symmetric part.
-        m = (rotation + np.eye(3)) / 2.0
-        axis = m[int(np.argmax(np.diag(m)))]
-        axis = axis / np.linalg.norm(axis)
-        if axis @ w < 0:
-            axis = -axis
-        return theta * axis
-    return theta / (2.0 * np.sin(theta)) * w
-
-
-def se3_exp(xi: np.ndarray) -> np.ndarray:
-    """Exp of a tangent vector `(rx, ry, rz, tx, ty, tz)` (GTSAM's Pose3.Expmap) as a 4x4."""
-    omega, v = np.asarray(xi[:3], float), np.asarray(xi[3:], float)
-    theta = float(np.linalg.norm(omega))
-    k = skew(omega)
-    if theta < 1e-8:
-        left_jacobian = np.eye(3) + 0.5 * k
-    else:
-        left_jacobian = (
-            np.eye(3)
-            + (1.0 - np.cos(theta)) / theta**2 * k
-            + (theta - np.sin(theta)) / theta**3 * k @ k
-        )
-    pose = np.eye(4)
-    pose[:3, :3] = so3_exp(omega)
-    pose[:3, 3] = left_jacobian @ v
-    return pose
-
-
-def invert_pose(pose: np.ndarray) -> np.ndarray:
-    inverse = np.eye(4)
-    inverse[:3, :3] = pose[:3, :3].T
-    inverse[:3, 3] = -pose[:3, :3].T @ pose[:3, 3]
-    return inverse
-
-
 def pose_adjoint(pose: np.ndarray) -> np.ndarray:
-    """The 6x6 adjoint of a pose in tangent order (rotation, translation):
+    """The 6x6 adjoint of a 4x4 pose in tangent order (rotation, translation):
     `pose @ Exp(xi) @ inverse(pose) == Exp(adjoint @ xi)`."""
-    rotation, translation = pose[:3, :3], pose[:3, 3]
-    adjoint = np.zeros((6, 6))
-    adjoint[:3, :3] = rotation
-    adjoint[3:, 3:] = rotation
-    adjoint[3:, :3] = skew(translation) @ rotation
-    return adjoint
+    return adjoint(pose[:3, :3], pose[:3, 3])
 
 
 def conjugate_pose(frame_from_old: np.ndarray, pose: np.ndarray, covariance: np.ndarray):
@@ -106,45 +50,6 @@ def conjugate_pose(frame_from_old: np.ndarray, pose: np.ndarray, covariance: np.
     adjoint = pose_adjoint(frame_from_old)
     new_pose = frame_from_old @ pose @ invert_pose(frame_from_old)
     return new_pose, adjoint @ covariance @ adjoint.T
-
-
-def quaternion_from_rotation(rotation: np.ndarray) -> tuple[float, float, float, float]:
-    """Unit quaternion `[x, y, z, w]` with w >= 0 (Shepperd's method: stable for any angle)."""
-    r = rotation
-    trace = np.trace(r)
-    if trace > 0:
-        s = 2.0 * np.sqrt(1.0 + trace)
-        q = [(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, 0.25 * s]
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q = [0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s]
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q = [(r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q = [(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s, (r[1, 0] - r[0, 1]) / s]
-    quaternion = np.array(q)
-    quaternion /= np.linalg.norm(quaternion)
-    if quaternion[3] < 0:
-        quaternion = -quaternion
-    return tuple(float(v) for v in quaternion)  # type: ignore[return-value]
-
-
-def rotation_from_quaternion(quaternion: np.ndarray) -> np.ndarray:
-    """The rotation matrix of a quaternion `[x, y, z, w]` (normalised first)."""
-    x, y, z, w = np.asarray(quaternion, float) / np.linalg.norm(quaternion)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-def rotation_angle(rotation: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
 
 
 # --- the stereo camera -----------------------------------------------------------------------
@@ -206,43 +111,6 @@ def right_camera_points(points: np.ndarray, intrinsics: StereoIntrinsics) -> np.
 
 
 # --- point measurements ----------------------------------------------------------------------
-
-
-def bearing_elevation_range(point: np.ndarray) -> np.ndarray:
-    """The contract's point measurement of a body-frame point `(..., 3)` -> `(..., 3)`."""
-    point = np.asarray(point, float)
-    x, y, z = point[..., 0], point[..., 1], point[..., 2]
-    return np.stack(
-        [np.arctan2(y, x), np.arctan2(z, np.hypot(x, y)), np.linalg.norm(point, axis=-1)],
-        axis=-1,
-    )
-
-
-def bearing_elevation_range_jacobian(point: np.ndarray) -> np.ndarray:
-    """d(bearing, elevation, range)/d(point) of one body-frame point: a 3x3."""
-    x, y, z = np.asarray(point, float)
-    rho2 = x * x + y * y
-    rho = np.sqrt(rho2)
-    r2 = rho2 + z * z
-    r = np.sqrt(r2)
-    return np.array(
-        [
-            [-y / rho2, x / rho2, 0.0],
-            [-z * x / (r2 * rho), -z * y / (r2 * rho), rho / r2],
-            [x / r, y / r, z / r],
-        ]
-    )
-
-
-def point_from_bearing_elevation_range(measurement: np.ndarray) -> np.ndarray:
-    bearing, elevation, rng = measurement
-    return rng * np.array(
-        [
-            np.cos(elevation) * np.cos(bearing),
-            np.cos(elevation) * np.sin(bearing),
-            np.sin(elevation),
-        ]
-    )
 
 
 def stereo_point_measurement(

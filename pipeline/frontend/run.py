@@ -259,7 +259,7 @@ def encode_image(image: np.ndarray, image_format: str, jpeg_quality: int) -> byt
 
 def _pose_parts(pose: np.ndarray) -> tuple[tuple[float, float, float], tuple[float, ...]]:
     translation = tuple(float(v) for v in pose[:3, 3])
-    return translation, quaternion_from_rotation(pose[:3, :3])  # type: ignore[return-value]
+    return translation, tuple(quaternion_from_rotation(pose[:3, :3]).tolist())  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)

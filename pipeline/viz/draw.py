@@ -15,8 +15,8 @@ import numpy as np
 
 from pipeline.backend.association import chi2_gate
 from pipeline.backend.candidates import Candidates
-from pipeline.backend.geometry import rotation_from_quaternion
 from pipeline.backend.hypotheses import NULL, AssociationRecord
+from pipeline.geometry import rotation_from_quaternion
 from pipeline.log.messages import GroundTruthPose, Odometry
 
 # Qualitative colours for the first classes (chosen to stay apart from the hypothesis colours

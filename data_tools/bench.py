@@ -7,7 +7,8 @@ Parts (all by default, or `--only backend,mixture,viz,frontend`):
 - mixture: where the max-mixture picks its component, native factors swapped between iSAM2
   updates against a Python CustomFactor deciding at every linearisation.
 - viz: replay time without and with a Rerun recording.
-- frontend: frames per second of each image stage on 1226x370 stereo pairs, one core.
+- frontend: frames per second of each image stage (VO, tags, object boxes and their stereo
+  range) on 1226x370 stereo pairs, one core.
 """
 
 from __future__ import annotations
@@ -147,9 +148,10 @@ def main(argv: list[str] | None = None) -> int:
 
         bench_viz.main([])
     if "frontend" in parts:
-        from data_tools import bench_frontend
+        from data_tools import bench_frontend, bench_objects
 
         bench_frontend.main([])
+        bench_objects.main([])
     return 0
 
 

@@ -5,7 +5,8 @@ a user's file needs only the keys it changes. Unknown keys, missing keys and wro
 `InputError`s naming the key and the file. Supported field types: `int`, `float` (finite),
 `bool`, `str`, `Path` (resolved against the directory of the file that sets it), fixed or
 variable tuples of those, nested dataclasses, tuples of dataclasses (arrays of tables), and
-`dict` (a table handed on unchecked, for a stage that checks its own keys).
+`dict` (a free-form table, such as a name mapping, that its owner checks; a user's file
+replaces it whole).
 """
 
 from __future__ import annotations
@@ -84,10 +85,8 @@ def merge(base: dict[str, Any], override: dict[str, Any], cls: type, path: Path,
             if not isinstance(value, dict):
                 raise InputError(f"config {path}: '{prefix}{key}' must be a table")
             merge(base[key], value, kind, path, f"{prefix}{key}.")
-        elif kind is dict and isinstance(base.get(key), dict) and isinstance(value, dict):
-            base[key] = {**base[key], **value}  # an open table: its owner checks the keys
         else:
-            base[key] = value  # arrays (of numbers or of tables) are replaced whole
+            base[key] = value  # arrays and free-form tables (`dict` fields) are replaced whole
 
 
 def _scalar(value: Any, kind: type, path: Path, key: str) -> Any:

@@ -290,3 +290,28 @@ def test_reader_accepts_what_the_writer_writes_for_every_float(tmp_path):
         w.write(Detections(0, 0, (Detection(0, 0.0, -math.pi, tiny, 1e6, I3, "bbox"),)))
     (det,) = read_log(tmp_path / "f.mcap").detections[0].detections
     assert det.bearing == -math.pi and det.elevation == tiny and det.range == 1e6
+
+
+def test_written_messages_follow_the_json_schemas_in_the_file(tmp_path):
+    """Each channel carries a JSON Schema; every message of a written log validates against it."""
+    import jsonschema
+    from mcap.reader import make_reader
+
+    rp = RelativePose((1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0), I6)
+    det = Detection(1, 0.95, 0.1, -0.2, 7.5, I3, "apriltag", (1.0, 2.0, 30.0, 40.0), rp, 17)
+    with LogWriter(tmp_path / "s.mcap", METADATA) as w:
+        w.write(StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I6[:16]))
+        w.write(GroundTruthLandmarks(0, (GroundTruthLandmark(17, 1, (1.0, 2.0, 3.0)),)))
+        w.write(Detections(0, 0, (det,)))
+        w.write(Odometry(100, 0, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), I6))
+        w.write(GroundTruthPose(100, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
+        w.write(CompressedImage(100, "left", "png", b"png"), topics.LEFT_IMAGE)
+    seen = set()
+    with open(tmp_path / "s.mcap", "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            seen.add(channel.topic)
+    assert len(seen) == 6
+    bad = json.loads(json.dumps({"stamp_ns": 0, "pose_index": 0, "detections": [{"range": -1}]}))
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, json.loads(topics.schema_bytes(topics.DETECTIONS)))

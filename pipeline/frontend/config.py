@@ -1,7 +1,4 @@
-"""Typed front-end configuration: defaults in configs/frontend.toml, overridden by a user file.
-
-The `[objects]` table is kept as a plain table and handed to the object stage, which checks it.
-"""
+"""Typed front-end configuration: defaults in configs/frontend.toml, overridden by a user file."""
 
 from __future__ import annotations
 
@@ -80,13 +77,53 @@ class OutputConfig:
 
 
 @dataclass(frozen=True)
+class StereoRangeConfig:
+    """`[objects.stereo]`: stereo range inside a box (pipeline/frontend/stereo_range.py)."""
+
+    max_disparity: int
+    block_size: int
+    uniqueness_ratio: int
+    margin: int
+    central_fraction: float
+    min_valid_fraction: float
+    min_disparity: float
+    disparity_sigma: float
+    center_sigma: float
+    center_sigma_fraction: float
+    surface_to_centre: float
+    surface_to_centre_sigma: float
+
+
+@dataclass(frozen=True)
+class ObjectDetectorConfig:
+    """`[objects]`: the object-box stage (pipeline/frontend/objects.py)."""
+
+    enabled: bool
+    model: str  # a bare file name is looked up in the models directory
+    class_names_file: str
+    input_size: tuple[int, int]
+    confidence_threshold: float
+    nms_iou: float
+    num_threads: int
+    classes: tuple[str, ...]
+    class_map: dict  # detector class name -> one of `classes`
+    stereo: StereoRangeConfig
+
+    @property
+    def model_path(self) -> Path:
+        from pipeline.frontend.objects import resolve_model_path
+
+        return resolve_model_path(self.model)
+
+
+@dataclass(frozen=True)
 class FrontendConfig:
     classes: ClassConfig
     apriltags: AprilTagConfig
     vo: VoConfig
     keyframes: KeyframeConfig
     output: OutputConfig
-    objects: dict  # the object stage's own table, checked by that stage
+    objects: ObjectDetectorConfig
 
 
 def load_frontend_config(path: str | Path | None = None) -> FrontendConfig:
@@ -147,6 +184,35 @@ def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>")
     need(o.image_format in IMAGE_FORMATS, f"output.image_format must be one of {IMAGE_FORMATS}")
     need(1 <= o.jpeg_quality <= 100, "output.jpeg_quality must be in 1..100")
     need(0.0 < o.truth_min_iou <= 1.0, "output.truth_min_iou must be in (0, 1]")
+    ob = config.objects
+    need(0.0 < ob.confidence_threshold <= 1.0, "objects.confidence_threshold must be in (0, 1]")
+    need(0.0 < ob.nms_iou <= 1.0, "objects.nms_iou must be in (0, 1]")
+    need(ob.num_threads >= 1, "objects.num_threads must be >= 1")
     need(
-        isinstance(config.objects.get("enabled", False), bool), "objects.enabled must be a boolean"
+        min(ob.input_size) >= 32 and all(v % 32 == 0 for v in ob.input_size),
+        "objects.input_size: multiples of 32 (the YOLO networks' stride)",
     )
+    need(len(ob.classes) >= 1, "objects.classes must name at least one class")
+    need(len(set(ob.classes)) == len(ob.classes), "objects.classes must not repeat a name")
+    need(len(ob.class_map) >= 1, "objects.class_map must map at least one detector class")
+    for detector_name, ours in ob.class_map.items():
+        need(ours in ob.classes, f"objects.class_map.{detector_name}: {ours!r} is not in classes")
+    st = ob.stereo
+    need(
+        st.max_disparity >= 16 and st.max_disparity % 16 == 0,
+        "objects.stereo.max_disparity: 16, 32, ...",
+    )
+    need(st.block_size >= 1 and st.block_size % 2 == 1, "objects.stereo.block_size must be odd")
+    need(0 <= st.uniqueness_ratio <= 100, "objects.stereo.uniqueness_ratio must be in 0..100")
+    need(st.margin >= 0, "objects.stereo.margin must be >= 0")
+    need(0.0 < st.central_fraction <= 1.0, "objects.stereo.central_fraction must be in (0, 1]")
+    need(0.0 < st.min_valid_fraction <= 1.0, "objects.stereo.min_valid_fraction must be in (0, 1]")
+    need(
+        0.0 < st.min_disparity < st.max_disparity,
+        "objects.stereo.min_disparity: in (0, max_disparity)",
+    )
+    need(st.disparity_sigma > 0.0, "objects.stereo.disparity_sigma must be positive")
+    need(st.center_sigma > 0.0, "objects.stereo.center_sigma must be positive")
+    need(st.center_sigma_fraction >= 0.0, "objects.stereo.center_sigma_fraction must be >= 0")
+    need(st.surface_to_centre >= 0.0, "objects.stereo.surface_to_centre must be >= 0")
+    need(st.surface_to_centre_sigma >= 0.0, "objects.stereo.surface_to_centre_sigma must be >= 0")

@@ -157,11 +157,11 @@ def run_apriltags(
 
 def make_object_stage(config: FrontendConfig) -> ObjectStage | None:
     """The object-box stage if `[objects] enabled`; imported only then (it loads a model)."""
-    if not config.objects.get("enabled", False):
+    if not config.objects.enabled:
         return None
-    from pipeline.frontend.objects import ObjectDetector, ObjectDetectorConfig
+    from pipeline.frontend.objects import ObjectDetector
 
-    return ObjectDetector(ObjectDetectorConfig.from_table(dict(config.objects)))
+    return ObjectDetector(config.objects)
 
 
 def run_objects(

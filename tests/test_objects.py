@@ -1,0 +1,422 @@
+"""Object boxes: the darknet -> ONNX conversion against a numpy reference, decoding and
+suppression on hand-made tensors, the config, and the real detector on a real photo."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from data_tools import darknet_to_onnx as dn
+from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.errors import InputError
+from pipeline.frontend import objects as ob
+from pipeline.frontend.config import load_frontend_config
+
+# A small network with every layer kind of yolov3-tiny: batch-normed leaky convolutions, 2x2
+# maxpools of stride 2 and of stride 1, two yolo heads, a route back, an upsample and a route
+# joining two layers.
+TINY_CFG = """
+[net]
+width=64
+height=64
+channels=3
+
+[convolutional]
+batch_normalize=1
+filters=8
+size=3
+stride=1
+pad=1
+activation=leaky
+
+[maxpool]
+size=2
+stride=2
+
+[convolutional]
+batch_normalize=1
+filters=16
+size=3
+stride=1
+pad=1
+activation=leaky
+
+[maxpool]
+size=2
+stride=2
+
+[convolutional]
+batch_normalize=1
+filters=16
+size=3
+stride=1
+pad=1
+activation=leaky
+
+[maxpool]
+size=2
+stride=1
+
+[convolutional]
+batch_normalize=1
+filters=16
+size=1
+stride=1
+pad=1
+activation=leaky
+
+[convolutional]
+size=1
+stride=1
+pad=1
+filters=24
+activation=linear
+
+[yolo]
+mask = 3,4,5
+anchors = 10,14,  23,27,  37,58,  81,82,  135,169,  344,319
+classes=3
+num=6
+
+[route]
+layers = -4
+
+[convolutional]
+batch_normalize=1
+filters=8
+size=1
+stride=1
+pad=1
+activation=leaky
+
+[upsample]
+stride=2
+
+[route]
+layers = -1, 2
+
+[convolutional]
+size=3
+stride=1
+pad=1
+filters=24
+activation=linear
+
+[yolo]
+mask = 0,1,2
+anchors = 10,14,  23,27,  37,58,  81,82,  135,169,  344,319
+classes=3
+num=6
+"""
+TINY_NAMES = ["car", "bus", "dog"]
+
+
+def write_weights(network: dn.Network, path: Path) -> None:
+    """A darknet weights file (version 0.2: 64-bit `seen`) holding the network's parameters."""
+    chunks = []
+    for layer in network.layers:
+        if isinstance(layer, dn.Conv):
+            chunks.append(layer.bias)
+            if layer.bn_scale is not None:
+                chunks += [layer.bn_scale, layer.bn_mean, layer.bn_var]
+            chunks.append(layer.weight.ravel())
+    header = np.array([0, 2, 0], np.int32).tobytes() + np.array([12345], np.int64).tobytes()
+    path.write_bytes(header + np.concatenate(chunks).astype(np.float32).tobytes())
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> dict:
+    """The tiny network with random parameters, written as darknet files and converted."""
+    directory = tmp_path_factory.mktemp("tiny")
+    cfg, weights, names = directory / "tiny.cfg", directory / "tiny.weights", directory / "names"
+    cfg.write_text(TINY_CFG)
+    names.write_text("\n".join(TINY_NAMES) + "\n")
+    generated = dn.build_network(dn.parse_cfg(TINY_CFG), None, rng=np.random.default_rng(7))
+    write_weights(generated, weights)
+    onnx_path = directory / "tiny.onnx"
+    network = dn.convert(cfg, weights, onnx_path, names)
+    return {
+        "cfg": cfg,
+        "weights": weights,
+        "generated": generated,
+        "network": network,
+        "onnx": onnx_path,
+    }
+
+
+# --- darknet -> ONNX -------------------------------------------------------------------------
+
+
+def test_weights_file_reads_back_what_was_written(tiny):
+    read = dn.load_network(tiny["cfg"], tiny["weights"])
+    convs = [(a, b) for a, b in zip(tiny["generated"].layers, read.layers, strict=True)]
+    assert [type(b).__name__ for _, b in convs] == [type(a).__name__ for a, _ in convs]
+    for a, b in convs:
+        if isinstance(a, dn.Conv):
+            np.testing.assert_array_equal(a.weight, b.weight)
+            np.testing.assert_array_equal(a.bias, b.bias)
+            if a.bn_scale is not None:
+                np.testing.assert_array_equal(a.bn_var, b.bn_var)
+    assert read.shapes[5] == (16, 16, 16)  # the stride-1 maxpool keeps the size
+    assert read.shapes[-1] == (24, 32, 32)
+
+
+def test_weights_file_of_the_wrong_size_is_refused(tiny, tmp_path):
+    data = tiny["weights"].read_bytes()
+    longer, shorter = tmp_path / "longer.weights", tmp_path / "shorter.weights"
+    longer.write_bytes(data + b"\0\0\0\0")
+    shorter.write_bytes(data[:-4])
+    with pytest.raises(dn.DarknetError, match="more than the cfg uses"):
+        dn.load_network(tiny["cfg"], longer)
+    with pytest.raises(dn.DarknetError, match="ends before"):
+        dn.load_network(tiny["cfg"], shorter)
+
+
+@pytest.mark.parametrize("size", [(64, 64), (96, 64)])
+def test_conversion_matches_the_numpy_reference(tiny, size):
+    # The model was built at 64x64; its decode reads the grid off the tensors, so 96x64 works.
+    network = dn.load_network(tiny["cfg"], tiny["weights"], *size)
+    diff = dn.compare(network, tiny["onnx"].read_bytes(), seed=3)
+    assert diff["raw"] < 1e-4
+    assert diff["decoded"] < 1e-4
+
+
+def test_fold_batch_norm_by_hand():
+    conv = dn.Conv(
+        weight=np.full((1, 1, 1, 1), 2.0, np.float32),
+        bias=np.array([1.0], np.float32),
+        stride=1,
+        padding=0,
+        activation="linear",
+        bn_scale=np.array([3.0], np.float32),
+        bn_mean=np.array([0.5], np.float32),
+        bn_var=np.array([4.0], np.float32),
+    )
+    weight, bias = dn.fold_batch_norm(conv)
+    # 3 * (2x - 0.5) / 2 + 1 = 3x + 0.25
+    assert weight.ravel()[0] == pytest.approx(3.0, rel=1e-6)
+    assert bias[0] == pytest.approx(0.25, rel=1e-5)
+
+
+def test_reference_maxpool_of_stride_one_ignores_the_padding():
+    # Darknet pads the bottom and right with -inf: a map of negatives keeps its values there.
+    x = np.array([[[-1.0, -2.0], [-3.0, -4.0]]])
+    out = dn._maxpool_reference(x, dn.MaxPool(size=2, stride=1, padding=1))
+    np.testing.assert_array_equal(out, [[[-1.0, -2.0], [-3.0, -4.0]]])
+
+
+def test_decode_head_by_hand():
+    head = dn.Yolo(anchors=np.array([[10.0, 20.0]]), classes=1)
+    raw = np.zeros((6, 2, 2))  # one anchor, 5 + 1 channels, a 2x2 grid
+    raw[2, 0, 1] = np.log(2.0)  # tw of the cell at row 0, col 1
+    rows = dn.decode_head(raw, head, net_w=64, net_h=64)
+    # Cell order is row-major: the second row is (row 0, col 1). Stride 32 px.
+    np.testing.assert_allclose(rows[1], [1.5 * 32, 0.5 * 32, 20.0, 20.0, 0.5, 0.5])
+    np.testing.assert_allclose(rows[2, :2], [16.0, 48.0])
+
+
+# --- decoding and suppression ----------------------------------------------------------------
+
+
+def test_prediction_rows_accepts_both_layouts():
+    rows = np.arange(2 * 8, dtype=np.float32).reshape(1, 2, 8)
+    out, objectness = ob.prediction_rows(rows, num_classes=3)
+    assert objectness and out.shape == (2, 8)
+    out, objectness = ob.prediction_rows(np.zeros((1, 7, 100)), num_classes=3)
+    assert not objectness and out.shape == (100, 7)
+    with pytest.raises(InputError, match="fits neither"):
+        ob.prediction_rows(np.zeros((1, 10, 9)), num_classes=3)
+
+
+def test_decode_rows_by_hand():
+    rows = np.array(
+        [
+            [50, 40, 20, 10, 0.9, 0.1, 0.95],  # 0.9 * 0.95 = 0.855: kept, class 1
+            [50, 40, 20, 10, 0.8, 0.95, 0.1],  # 0.76: dropped at 0.8
+        ],
+        np.float32,
+    )
+    boxes, scores, classes = ob.decode_rows(rows, objectness=True, threshold=0.8)
+    np.testing.assert_allclose(boxes, [[40, 35, 60, 45]])
+    np.testing.assert_allclose(scores, [0.855], rtol=1e-6)
+    assert classes.tolist() == [1]
+    _, scores, classes = ob.decode_rows(
+        rows[:, [0, 1, 2, 3, 5, 6]], objectness=False, threshold=0.8
+    )
+    assert classes.tolist() == [1, 0]
+    np.testing.assert_allclose(scores, [0.95, 0.95], rtol=1e-6)
+
+
+def test_letterbox_and_its_inverse():
+    image = np.zeros((100, 200), np.uint8)
+    image[40:60, 90:110] = 255
+    tensor, box = ob.letterbox(image, 64, 64)
+    assert tensor.shape == (1, 3, 64, 64) and tensor.dtype == np.float32
+    assert box.scale == pytest.approx(0.32) and (box.pad_x, box.pad_y) == (0, 16)
+    assert tensor[0, :, 0, 0] == pytest.approx([127 / 255] * 3)  # the grey band
+    assert tensor[0, :, 16 + 16, 32] == pytest.approx([1.0] * 3)  # the square's centre
+    network_box = np.array([[90 * 0.32, 16 + 40 * 0.32, 110 * 0.32, 16 + 60 * 0.32]])
+    np.testing.assert_allclose(ob.undo_letterbox(network_box, box, 200, 100), [[90, 40, 110, 60]])
+    outside = np.array([[-10.0, 0.0, 80.0, 70.0]])
+    np.testing.assert_allclose(ob.undo_letterbox(outside, box, 200, 100), [[0, 0, 200, 100]])
+
+
+def test_letterbox_of_a_tall_colour_image():
+    image = np.zeros((128, 64, 3), np.uint8)
+    image[..., 0] = 255  # blue, in OpenCV's BGR order
+    tensor, box = ob.letterbox(image, 64, 64)
+    assert box.scale == 0.5 and (box.pad_x, box.pad_y) == (16, 0)
+    assert tensor[0, :, 32, 32] == pytest.approx([0.0, 0.0, 1.0])  # the network wants RGB
+    network_box = np.array([[16 + 10 * 0.5, 20 * 0.5, 16 + 30 * 0.5, 60 * 0.5]])
+    np.testing.assert_allclose(ob.undo_letterbox(network_box, box, 64, 128), [[10, 20, 30, 60]])
+
+
+def test_suppression_keeps_the_best_of_overlapping_boxes_across_classes():
+    boxes = np.array([[0, 0, 10, 10], [1, 1, 11, 11], [50, 50, 60, 60], [0, 0, 10, 10.5]], float)
+    scores = np.array([0.85, 0.9, 0.8, 0.95])
+    kept = ob.suppress(boxes, scores, iou=0.45)
+    assert kept.tolist() == [3, 2]
+    assert ob.suppress(np.empty((0, 4)), np.empty(0), 0.45).tolist() == []
+    assert ob.box_iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(1 / 3)
+
+
+# --- configuration ---------------------------------------------------------------------------
+
+
+def default_objects() -> ob.ObjectDetectorConfig:
+    return load_frontend_config().objects
+
+
+def test_object_config_keys_are_checked(tmp_path):
+    override = tmp_path / "frontend.toml"
+    override.write_text(
+        'classes = ["vehicle"]\n[objects.class_map]\ncar = "vehicle"\n'
+        "[objects.stereo]\nmargin = 4\n".replace("classes", "[objects]\nclasses", 1)
+    )
+    config = load_frontend_config(override).objects
+    assert config.classes == ("vehicle",) and config.class_map["car"] == "vehicle"
+    assert config.stereo.margin == 4 and config.stereo.max_disparity == 128
+    for text, message in [
+        ("[objects]\nmodel_path = 'x'\n", "unknown key 'objects.model_path'"),
+        ("[objects.class_map]\ncar = 'plane'\n", "not in classes"),
+        ("[objects]\ninput_size = [416, 400]\n", "multiples of 32"),
+        ("[objects]\nconfidence_threshold = 1.5\n", "confidence_threshold"),
+        ("[objects.stereo]\nblock_size = 4\n", "block_size"),
+    ]:
+        override.write_text(text)
+        with pytest.raises(InputError, match=message):
+            load_frontend_config(override)
+
+
+def test_models_directory_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv(ob.MODELS_ENV, str(tmp_path))
+    assert default_objects().model_path == tmp_path / ob.DEFAULT_MODEL
+    assert ob.resolve_model_path("/elsewhere/m.onnx") == Path("/elsewhere/m.onnx")
+
+
+# --- the detector on the tiny model ----------------------------------------------------------
+
+
+def tiny_detector(tiny, **table) -> ob.ObjectDetector:
+    base = {
+        "model": str(tiny["onnx"]),
+        "input_size": (64, 64),
+        "classes": ("car", "truck"),
+        "class_map": {"car": "car", "bus": "truck"},
+        "confidence_threshold": 0.05,
+    }
+    return ob.ObjectDetector(dataclasses.replace(default_objects(), **{**base, **table}))
+
+
+def test_detector_reports_only_mapped_classes_inside_the_image(tiny):
+    detector = tiny_detector(tiny)
+    assert detector.detector_classes == TINY_NAMES  # from the model's metadata
+    image = np.random.default_rng(1).integers(0, 256, (90, 160, 3), np.uint8)
+    boxes = detector.detect_boxes(image)
+    assert boxes, "random parameters at threshold 0.05 should fire somewhere"
+    for box in boxes:
+        assert box.detector_class in ("car", "bus")
+        assert box.class_name == {"car": "car", "bus": "truck"}[box.detector_class]
+        assert box.class_id == detector.class_names.index(box.class_name)
+        assert 0 <= box.bbox[0] <= box.bbox[2] <= 160 and 0 <= box.bbox[1] <= box.bbox[3] <= 90
+        assert box.score >= 0.05
+    scores = [b.score for b in boxes]
+    assert scores == sorted(scores, reverse=True)
+
+
+def test_detector_refuses_what_it_cannot_use(tiny, tmp_path):
+    with pytest.raises(InputError, match=r"data_tools\.models install"):
+        ob.ObjectDetector(dataclasses.replace(default_objects(), model=str(tmp_path / "none.onnx")))
+    with pytest.raises(InputError, match="no such class"):
+        tiny_detector(tiny, class_map={"truck": "truck"})
+
+
+# --- the real detector on a real photo (installed by `python -m data_tools.models install`) ---
+
+# darknet's dog.jpg: a white pickup parked behind the porch, boxed by hand in the photo.
+DOG_CAR_BOX = (468.0, 75.0, 680.0, 170.0)
+# yolov3-tiny scores that car 0.64 at its 416x416 input (measured): the paper's 0.8 is for a
+# stronger detector, so this test asks for 0.5 and a box on the car.
+DOG_THRESHOLD = 0.5
+
+
+def installed(path: Path) -> Path:
+    """The path, or a skip when the user chose not to install models, else a failure."""
+    if path.exists():
+        return path
+    if os.environ.get("MMSLAM_SKIP_MODELS") == "1":
+        pytest.skip(f"{path} absent: MMSLAM_SKIP_MODELS=1 (the user chose not to install models)")
+    pytest.fail(f"{path} absent: run `python -m data_tools.models install` (make test does)")
+
+
+@pytest.fixture(scope="module")
+def dog_photo() -> np.ndarray:
+    import cv2
+
+    from data_tools.models import dog_path
+
+    image = cv2.imread(str(installed(dog_path())))
+    assert image is not None
+    return image
+
+
+@pytest.fixture(scope="module")
+def yolo() -> ob.ObjectDetector:
+    from data_tools.models import model_path
+
+    installed(model_path())
+    config = default_objects()
+    bare_stereo = dataclasses.replace(config.stereo, surface_to_centre=0.0)
+    config = dataclasses.replace(
+        config, input_size=(416, 416), confidence_threshold=DOG_THRESHOLD, stereo=bare_stereo
+    )
+    return ob.ObjectDetector(config)
+
+
+def test_yolov3_tiny_finds_the_car_in_dog_jpg(yolo, dog_photo):
+    cars = [b for b in yolo.detect_boxes(dog_photo) if b.class_name == "car"]
+    assert cars, "no car found in dog.jpg"
+    best = max(cars, key=lambda b: ob.box_iou(b.bbox, DOG_CAR_BOX))
+    assert best.score >= DOG_THRESHOLD
+    assert ob.box_iou(best.bbox, DOG_CAR_BOX) >= 0.7, best
+
+
+def test_the_stage_ranges_the_car_on_a_shifted_pair(yolo, dog_photo):
+    # A fronto-parallel scene: the right image is the left one moved 30 px left.
+    import cv2
+
+    shift = 30
+    left = cv2.cvtColor(dog_photo, cv2.COLOR_BGR2GRAY)
+    right = np.zeros_like(left)
+    right[:, :-shift] = left[:, shift:]
+    k = StereoIntrinsics(left.shape[1], left.shape[0], 700.0, 700.0, 384.0, 288.0, 0.5)
+    records = [r for r in yolo.detect(left, right, k) if r.class_name == "car"]
+    assert records
+    record = max(records, key=lambda r: ob.box_iou(r.bbox, DOG_CAR_BOX))
+    assert record.disparity == pytest.approx(shift, abs=0.25)
+    assert record.point[2] == pytest.approx(700.0 * 0.5 / shift, rel=0.01)
+    assert record.covariance.shape == (3, 3)

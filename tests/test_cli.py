@@ -211,3 +211,12 @@ def test_the_installed_command_prints_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_a_closed_pipe_is_not_an_error(good_log):
+    exe = os.path.join(os.path.dirname(sys.executable), "mmslam")
+    proc = subprocess.run(
+        f"'{exe}' inspect '{good_log}' | head -n 1", shell=True, capture_output=True, text=True
+    )
+    assert proc.stdout.startswith("log:")
+    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr

@@ -213,10 +213,10 @@ def test_the_installed_command_prints_no_traceback(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_a_closed_pipe_is_not_an_error(good_log):
-    exe = os.path.join(os.path.dirname(sys.executable), "mmslam")
-    proc = subprocess.run(
-        f"'{exe}' inspect '{good_log}' | head -n 1", shell=True, capture_output=True, text=True
-    )
-    assert proc.stdout.startswith("log:")
-    assert "Traceback" not in proc.stderr and "BrokenPipe" not in proc.stderr
+def test_a_closed_pipe_is_not_an_error(good_log, monkeypatch):
+    """`mmslam inspect LOG | head`: the reader goes away before the report is written."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    closed = os.fdopen(write_end, "w", buffering=1)
+    monkeypatch.setattr(sys, "stdout", closed)
+    assert main(["inspect", str(good_log)]) == 0

@@ -79,6 +79,22 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from data_tools.sweep import run_sweep
+
+    if args.workers is not None and args.dask is not None:
+        raise InputError("--workers and --dask: choose one")
+    summary = run_sweep(
+        args.config,
+        args.out,
+        workers=args.workers,
+        dask_address=args.dask,
+        progress=not args.quiet,
+    )
+    print(summary.summary_line())
+    return 1 if summary.failed else 0
+
+
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from pipeline.inspect import inspect_log, render_text
 
@@ -152,6 +168,16 @@ def build_parser() -> argparse.ArgumentParser:
     inspect.add_argument("log", type=Path, metavar="LOG.mcap")
     inspect.add_argument("--json", action="store_true", help="print the report as JSON")
     inspect.set_defaults(run=_cmd_inspect)
+
+    sweep = commands.add_parser(
+        "sweep", help="the paper's experiments: many replays, tables, plots"
+    )
+    sweep.add_argument("config", type=Path, metavar="CONFIG", help="e.g. configs/sweeps/small.toml")
+    sweep.add_argument("--out", required=True, type=Path, metavar="DIR")
+    sweep.add_argument("--workers", type=int, metavar="N", help="processes (default: every core)")
+    sweep.add_argument("--dask", metavar="ADDRESS", help="run on a Dask cluster instead")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.set_defaults(run=_cmd_sweep)
 
     replay = commands.add_parser("replay", help="the SLAM back-end over a log")
     replay.add_argument("log", type=Path, metavar="LOG.mcap")

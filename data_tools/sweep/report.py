@@ -1,0 +1,37 @@
+"""Redo the tables and figures of a sweep folder from its results.csv:
+
+    python -m data_tools.sweep.report DIR
+
+rewrites DIR/tables.md and DIR/fig_<axis>.png (one per axis of the sweep).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from data_tools.sweep.reporting import report
+from pipeline.errors import InputError
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m data_tools.sweep.report",
+        description="Redo tables.md and the box plots of a sweep folder from its results.csv.",
+    )
+    parser.add_argument("out", type=Path, metavar="DIR", help="the folder of `mmslam sweep`")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        written = report(args.out)
+    except InputError as exc:
+        print(f"report: error: {exc}", file=sys.stderr)
+        return 2
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,123 @@
+"""One run of a sweep, as a worker does it: make (or reuse) the log, replay it, return metrics.
+
+`run_task` is a top-level function of picklable arguments, so that a process pool and a Dask
+cluster can both call it. The log of a (cell, seed) is made once, under a file lock, and shared
+by that cell and seed's methods. A run is finished when its `metrics.json` is complete on disk;
+the replay writes it atomically, so a half-done run never looks finished.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from data_tools.sweep.grid import RunKey
+from pipeline.outputs import METRICS
+
+STATISTICS = ("max", "mean", "median", "rmse")
+ASSOCIATION = ("correct", "wrong", "null")
+ERROR_FILE = "error.txt"
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """Everything a worker needs for one run; paths are the driver's (a shared folder)."""
+
+    key: RunKey
+    scenario: str
+    scenario_config: Path | None
+    backend_config: Path | None
+    num_classes: int
+    true_covariance: bool
+    log_path: Path
+    run_dir: Path
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    key: RunKey
+    metrics: dict[str, Any] | None  # None when the run failed
+    error: str | None  # the exception's type and message, when it failed
+    details: str | None  # its traceback
+    seconds: float  # wall time on the worker, log included
+
+
+def complete_metrics(metrics: Any, method: str) -> bool:
+    """Whether `metrics` (read from a metrics.json) holds everything a result row needs."""
+    if not isinstance(metrics, dict) or metrics.get("method") != method:
+        return False
+    try:
+        groups = ("translation_error_m", "rotation_error_rad")
+        numbers = [metrics[group][s] for group in groups for s in STATISTICS]
+        numbers += [metrics["association"][a] for a in ASSOCIATION]
+        numbers += [metrics[k] for k in ("runtime_s", "num_poses", "num_detections")]
+        numbers.append(metrics["num_landmarks"])
+    except (KeyError, TypeError):
+        return False
+    return all(isinstance(n, int | float) and not isinstance(n, bool) for n in numbers)
+
+
+def finished_metrics(run_dir: Path, method: str) -> dict[str, Any] | None:
+    """The metrics of a finished run in `run_dir`, or None if it has not finished."""
+    try:
+        metrics = json.loads((run_dir / METRICS).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return metrics if complete_metrics(metrics, method) else None
+
+
+def ensure_log(task: RunTask) -> None:
+    """Make the log of the task's cell and seed unless it exists (once, whoever asks first)."""
+    if task.log_path.exists():
+        return
+    from data_tools.scenarios import simulate
+
+    task.log_path.parent.mkdir(parents=True, exist_ok=True)
+    lock_path = task.log_path.with_name(f".{task.log_path.name}.lock")
+    with open(lock_path, "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            if task.log_path.exists():  # made while we waited
+                return
+            simulate(
+                task.scenario,
+                task.log_path,
+                seed=task.key.seed,
+                odom_noise_scale=task.key.cell.odom_noise_scale,
+                misclassification=task.key.cell.misclassification,
+                num_classes=task.num_classes,
+                true_covariance=task.true_covariance,
+                config_path=task.scenario_config,
+            )
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
+
+
+def run_task(task: RunTask) -> RunOutcome:
+    """Make the log if needed and replay it with the task's method into its run folder."""
+    from pipeline.config import load_config
+    from pipeline.replay import replay
+
+    start = time.perf_counter()
+    try:
+        ensure_log(task)
+        result = replay(
+            task.log_path,
+            task.key.method,
+            task.run_dir,
+            load_config(task.backend_config),
+            progress=False,
+        )
+        if result.metrics is None:
+            raise ValueError(f"{task.log_path} has no ground truth to score the run against")
+        (task.run_dir / ERROR_FILE).unlink(missing_ok=True)
+        return RunOutcome(task.key, result.metrics, None, None, time.perf_counter() - start)
+    except Exception as exc:
+        message = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        details = traceback.format_exc()
+        return RunOutcome(task.key, None, message, details, time.perf_counter() - start)

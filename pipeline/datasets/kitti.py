@@ -13,14 +13,13 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.datasets.stereo import StereoSequence, image_files, read_grey
 from pipeline.errors import InputError
 
 # Columns: the camera's x (right), y (down) and z (forward) axes in the body frame.
 BODY_FROM_CAMERA_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 BODY_FROM_CAMERA = np.eye(4)
 BODY_FROM_CAMERA[:3, :3] = BODY_FROM_CAMERA_ROTATION
-
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".pgm")
 
 
 @dataclass(frozen=True)
@@ -127,11 +126,7 @@ def body_poses_to_camera(body_poses: np.ndarray) -> np.ndarray:
     return np.linalg.inv(b) @ np.asarray(body_poses) @ b
 
 
-def _image_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-
-
-class KittiSequence:
+class KittiSequence(StereoSequence):
     """A sequence in the KITTI odometry layout, frame by frame.
 
     `root` holds `image_0/` and `image_1/` (left and right), `calib.txt` and `times.txt`; ground
@@ -145,8 +140,8 @@ class KittiSequence:
         for name in ("image_0", "image_1", "calib.txt", "times.txt"):
             if not (self.root / name).exists():
                 raise InputError(f"sequence {self.root}: missing {name}")
-        self.left_files = _image_files(self.root / "image_0")
-        self.right_files = _image_files(self.root / "image_1")
+        self.left_files = image_files(self.root / "image_0")
+        self.right_files = image_files(self.root / "image_1")
         if len(self.left_files) != len(self.right_files) or not self.left_files:
             raise InputError(
                 f"sequence {self.root}: image_0 has {len(self.left_files)} images, image_1 has "
@@ -158,7 +153,7 @@ class KittiSequence:
                 f"sequence {self.root}: times.txt has {len(self.times)} lines for "
                 f"{len(self.left_files)} images"
             )
-        height, width = self._read(self.left_files[0]).shape[:2]
+        height, width = read_grey(self.left_files[0]).shape[:2]
         self.intrinsics = read_calibration(self.root / "calib.txt", width, height)
         self.gt_poses = self._ground_truth()
 
@@ -173,19 +168,3 @@ class KittiSequence:
                     raise InputError(f"poses {path}: {len(poses)} poses for {len(self)} images")
                 return poses
         return None
-
-    @staticmethod
-    def _read(path: Path) -> np.ndarray:
-        import cv2
-
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise InputError(f"image {path}: cannot be read")
-        return image
-
-    def __len__(self) -> int:
-        return len(self.left_files)
-
-    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """The rectified (left, right) grey images of a frame."""
-        return self._read(self.left_files[index]), self._read(self.right_files[index])

@@ -35,11 +35,11 @@ from typing import Any
 import numpy as np
 
 from pipeline.datasets.kitti import (
-    IMAGE_SUFFIXES,
     StereoIntrinsics,
     read_poses,
     read_times,
 )
+from pipeline.datasets.stereo import StereoSequence, image_files, read_grey
 from pipeline.errors import InputError
 
 CALIBRATION_FILE = "calibration.toml"
@@ -90,11 +90,7 @@ def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str
     return numbers, sequence
 
 
-def _image_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
-
-
-class PlainSequence:
+class PlainSequence(StereoSequence):
     """A stereo sequence in the plain layout (see the module's description)."""
 
     def __init__(self, root: str | Path):
@@ -109,7 +105,7 @@ class PlainSequence:
         for folder in folders:
             if not folder.is_dir():
                 raise InputError(f"sequence {self.root}: missing image folder {folder.name}/")
-        self.left_files, self.right_files = (_image_files(f) for f in folders)
+        self.left_files, self.right_files = (image_files(f) for f in folders)
         if len(self.left_files) != len(self.right_files) or not self.left_files:
             raise InputError(
                 f"sequence {self.root}: {folders[0].name}/ has {len(self.left_files)} images, "
@@ -125,7 +121,7 @@ class PlainSequence:
                 )
         else:
             self.times = np.arange(len(self)) / float(sequence["frame_rate"])
-        height, width = self._read(self.left_files[0]).shape[:2]
+        height, width = read_grey(self.left_files[0]).shape[:2]
         for key, actual in (("width", width), ("height", height)):
             if key in camera and int(camera[key]) != actual:
                 raise InputError(
@@ -149,25 +145,3 @@ class PlainSequence:
                 raise InputError(
                     f"poses {poses_path}: {len(self.gt_poses)} poses for {len(self)} images"
                 )
-
-    @staticmethod
-    def _read(path: Path) -> np.ndarray:
-        import cv2
-
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-        if image is None:
-            raise InputError(f"image {path}: cannot be read")
-        return image
-
-    def __len__(self) -> int:
-        return len(self.left_files)
-
-    def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
-        """The rectified (left, right) grey images of a frame."""
-        left, right = self._read(self.left_files[index]), self._read(self.right_files[index])
-        if left.shape != right.shape:
-            raise InputError(
-                f"sequence {self.root}: frame {index} has left {left.shape[::-1]} and right "
-                f"{right.shape[::-1]} images"
-            )
-        return left, right

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from pipeline.errors import InputError
+from pipeline.errors import InputError, SolverError
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
 
@@ -203,6 +203,9 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         print(f"mmslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except SolverError as exc:
+        print(f"mmslam {args.command}: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f"mmslam {args.command}: interrupted", file=sys.stderr)
         return 130

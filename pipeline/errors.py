@@ -1,4 +1,5 @@
-"""Errors the command line turns into exit status 2 with a one-line message."""
+"""Errors the command line turns into a one-line message: exit status 2 for bad input, 1 for a
+solver that failed on good input."""
 
 
 class InputError(Exception):
@@ -17,3 +18,7 @@ class LogError(InputError):
         self.topic = topic
         self.index = index
         self.reason = reason
+
+
+class SolverError(RuntimeError):
+    """iSAM2 could not solve the graph (e.g. an indeterminate system after divergence)."""

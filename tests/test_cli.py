@@ -5,9 +5,11 @@ import os
 import subprocess
 import sys
 
+import gtsam
 import numpy as np
 import pytest
 
+from pipeline.backend.solver import Isam2Solver
 from pipeline.cli import main
 from tests.synthetic import Scene, square_loop, write_scene
 from tests.test_log import BAD_MESSAGES, good_messages, write_raw
@@ -220,3 +222,28 @@ def test_a_closed_pipe_is_not_an_error(good_log, monkeypatch):
     closed = os.fdopen(write_end, "w", buffering=1)
     monkeypatch.setattr(sys, "stdout", closed)
     assert main(["inspect", str(good_log)]) == 0
+
+
+def test_a_solver_failure_exits_1_with_one_line_and_leaves_earlier_outputs(
+    tmp_path, capsys, good_log, earlier_run, monkeypatch
+):
+    """iSAM2 throwing on a graph it cannot solve is not bad input, but it gets one line too."""
+    out, before = earlier_run
+    unsolvable = gtsam.BetweenFactorPose3(
+        gtsam.symbol("z", 1), gtsam.symbol("z", 2), gtsam.Pose3(), gtsam.noiseModel.Unit.Create(6)
+    )
+    original = Isam2Solver.update
+
+    def update_with_a_free_pair(self):  # two poses tied only to each other: indeterminate
+        if self.num_updates == 3:
+            self.add(unsolvable)
+            self.insert(gtsam.symbol("z", 1), gtsam.Pose3())
+            self.insert(gtsam.symbol("z", 2), gtsam.Pose3())
+        return original(self)
+
+    monkeypatch.setattr(Isam2Solver, "update", update_with_a_free_pair)
+    status, _, err = run_cli(capsys, "replay", str(good_log), "--method", "ml", "--out", str(out))
+    assert status == 1
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "iSAM2 update 3 failed: Indeterminate linear system" in err
+    assert snapshot(out) == before

@@ -118,6 +118,7 @@ def run_task(task: RunTask) -> RunOutcome:
         (task.run_dir / ERROR_FILE).unlink(missing_ok=True)
         return RunOutcome(task.key, result.metrics, None, None, time.perf_counter() - start)
     except Exception as exc:
-        message = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        first = next((line for line in str(exc).splitlines() if line.strip()), "")
+        message = f"{type(exc).__name__}: {first}"
         details = traceback.format_exc()
         return RunOutcome(task.key, None, message, details, time.perf_counter() - start)

@@ -7,6 +7,7 @@ import gtsam
 import numpy as np
 
 from pipeline.config import Isam2Config
+from pipeline.errors import SolverError
 
 
 class Isam2Solver:
@@ -50,7 +51,11 @@ class Isam2Solver:
     def update(self) -> set[int]:
         """Apply what is pending; returns iSAM2's marked keys (new factors' keys, removed
         factors' keys and every relinearised variable): the variables whose estimate moved."""
-        result = self.isam.update(self._graph, self._values, self._removals)
+        try:
+            result = self.isam.update(self._graph, self._values, self._removals)
+        except RuntimeError as exc:  # GTSAM's messages open with a blank line and run to ten
+            first = next((line for line in str(exc).splitlines() if line.strip()), "")
+            raise SolverError(f"iSAM2 update {self.num_updates} failed: {first}") from exc
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot
         self._graph = gtsam.NonlinearFactorGraph()

@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
 
     tags = out / "indoor-tags.mcap"
     _mmslam(
-        "simulate", "indoor-tags", "--out", str(tags), "--seed", "1", "--odom-noise-scale", "4",
+        "simulate", "indoor-tags", "--out", str(tags), "--seed", "2", "--odom-noise-scale", "4",
         "--misclassification", "0.1", "--true-covariance",
     )  # fmt: skip
     for method in ("ml", "mm-nh"):

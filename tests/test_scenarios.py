@@ -234,7 +234,7 @@ def _camera_measurement(u: np.ndarray, v: np.ndarray, fx: float, fy: float, cx, 
 def test_kitti_stereo_noise_matches_the_camera_model(run):
     _, log, _ = run("kitti05-cars")
     cam, det_cfg = toml("kitti05-cars")["camera"], toml("kitti05-cars")["detector"]
-    fx, fy, cx, cy, b = cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam["baseline_m"]
+    fx, fy, cx, cy, b = cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam["baseline"]
     residuals, covariances, points = [], [], []
     for _, det, p in true_detections(log):
         residuals.append(

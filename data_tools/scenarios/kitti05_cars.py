@@ -45,7 +45,13 @@ from data_tools.scenarios.noise import (
     random_streams,
     sample_reported_classes,
 )
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, camera_poses_to_body, read_poses, read_times
+from pipeline.datasets.kitti import (
+    BODY_FROM_CAMERA,
+    StereoIntrinsics,
+    camera_poses_to_body,
+    read_poses,
+    read_times,
+)
 from pipeline.errors import InputError
 from pipeline.log import Detection, GroundTruthLandmark, StereoCalibration
 
@@ -64,17 +70,6 @@ _NEAR_PLANE_M = 0.1  # box corners closer than this to the image plane are not p
 class SequenceConfig:
     data_dir: Path
     camera_height_m: float
-
-
-@dataclass(frozen=True)
-class CameraConfig:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    baseline_m: float
 
 
 @dataclass(frozen=True)
@@ -121,7 +116,7 @@ class DetectorConfig:
 class Kitti05CarsConfig:
     world_seed: int
     sequence: SequenceConfig
-    camera: CameraConfig
+    camera: StereoIntrinsics
     vehicles: tuple[VehicleClass, ...]
     parking: ParkingConfig
     detector: DetectorConfig
@@ -145,7 +140,7 @@ def _check(c: Kitti05CarsConfig, path: Path) -> None:
     req(c.sequence.camera_height_m > 0, path, "sequence.camera_height_m must be positive")
     cam = c.camera
     req(cam.width > 0 and cam.height > 0, path, "camera image size must be positive")
-    req(cam.fx > 0 and cam.fy > 0 and cam.baseline_m > 0, path, "camera fx, fy, baseline > 0")
+    req(cam.fx > 0 and cam.fy > 0 and cam.baseline > 0, path, "camera fx, fy, baseline > 0")
     req(len(c.vehicles) >= 1, path, "at least one vehicle class is needed")
     for v in c.vehicles:
         req(v.frequency > 0, path, f"vehicle {v.name!r}: frequency must be positive")
@@ -306,7 +301,7 @@ def build_world(config: Kitti05CarsConfig) -> Kitti05World:
 CAMERA_FROM_BODY_ROTATION = BODY_FROM_CAMERA[:3, :3].T
 
 
-def project(points_body: np.ndarray, camera: CameraConfig) -> tuple[np.ndarray, np.ndarray]:
+def project(points_body: np.ndarray, camera: StereoIntrinsics) -> tuple[np.ndarray, np.ndarray]:
     """Body-frame points (..., 3) to pixels (..., 2) and depths (...,) of the left camera."""
     c = points_body @ CAMERA_FROM_BODY_ROTATION.T
     depth = c[..., 2]
@@ -316,12 +311,12 @@ def project(points_body: np.ndarray, camera: CameraConfig) -> tuple[np.ndarray, 
     return np.stack([u, v], axis=-1), depth
 
 
-def in_image(pixels: np.ndarray, camera: CameraConfig) -> np.ndarray:
+def in_image(pixels: np.ndarray, camera: StereoIntrinsics) -> np.ndarray:
     u, v = pixels[..., 0], pixels[..., 1]
     return (u >= 0) & (u <= camera.width) & (v >= 0) & (v <= camera.height)
 
 
-def bearing_elevation_pixel_jacobian(pixels: np.ndarray, camera: CameraConfig) -> np.ndarray:
+def bearing_elevation_pixel_jacobian(pixels: np.ndarray, camera: StereoIntrinsics) -> np.ndarray:
     """d(bearing, elevation) / d(u, v) at (N, 2) pixels, (N, 2, 2).
 
     With a = (u - cx)/fx and c = (v - cy)/fy: bearing = -atan(a) and
@@ -339,10 +334,10 @@ def bearing_elevation_pixel_jacobian(pixels: np.ndarray, camera: CameraConfig) -
 
 
 def stereo_range_sigma(
-    depth: np.ndarray, distance: np.ndarray, camera: CameraConfig, sigma_d: float
+    depth: np.ndarray, distance: np.ndarray, camera: StereoIntrinsics, sigma_d: float
 ) -> np.ndarray:
     """sigma of the range: sigma_z = z^2 sigma_d / (f b), stretched along the ray by r / z."""
-    sigma_z = depth**2 * sigma_d / (camera.fx * camera.baseline_m)
+    sigma_z = depth**2 * sigma_d / (camera.fx * camera.baseline)
     return sigma_z * distance / depth
 
 
@@ -350,7 +345,7 @@ def measurement_covariances(
     pixels: np.ndarray,
     depth: np.ndarray,
     distance: np.ndarray,
-    camera: CameraConfig,
+    camera: StereoIntrinsics,
     d: DetectorConfig,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(covariances (N, 3, 3), pixel Jacobians (N, 2, 2), range sigmas (N,)) of detections."""
@@ -368,7 +363,7 @@ def box_corners(poses: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     return np.einsum("nij,nkj->nki", poses[:, :3, :3], local) + poses[:, None, :3, 3]
 
 
-def bounding_boxes(corners_body: np.ndarray, camera: CameraConfig) -> np.ndarray:
+def bounding_boxes(corners_body: np.ndarray, camera: StereoIntrinsics) -> np.ndarray:
     """(N, 4) image boxes [u_min, v_min, u_max, v_max] of body-frame corners, clipped."""
     pixels, depth = project(corners_body, camera)
     front = (depth > _NEAR_PLANE_M)[..., None]
@@ -394,7 +389,7 @@ class DetectionBatch:
 
 def detect_cars(
     world: Kitti05World,
-    camera: CameraConfig,
+    camera: StereoIntrinsics,
     d: DetectorConfig,
     streams: dict[str, np.random.Generator],
 ) -> DetectionBatch:
@@ -487,7 +482,7 @@ def class_names(vehicles: tuple[VehicleClass, ...], num_classes: int) -> list[st
     return names
 
 
-def calibration_of(camera: CameraConfig, stamp_ns: int) -> StereoCalibration:
+def calibration_of(camera: StereoIntrinsics, stamp_ns: int) -> StereoCalibration:
     return StereoCalibration(
         stamp_ns=stamp_ns,
         width=camera.width,
@@ -496,7 +491,7 @@ def calibration_of(camera: CameraConfig, stamp_ns: int) -> StereoCalibration:
         fy=camera.fy,
         cx=camera.cx,
         cy=camera.cy,
-        baseline=camera.baseline_m,
+        baseline=camera.baseline,
         body_from_camera=floats(BODY_FROM_CAMERA),
     )
 

@@ -22,3 +22,8 @@ class LogError(InputError):
 
 class SolverError(RuntimeError):
     """iSAM2 could not solve the graph (e.g. an indeterminate system after divergence)."""
+
+
+def first_line(text: str) -> str:
+    """The first non-blank line: GTSAM's messages open with a blank line and run to ten."""
+    return next((line for line in text.splitlines() if line.strip()), "")

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from data_tools.sweep.grid import RunKey
+from pipeline.errors import first_line
 from pipeline.outputs import METRICS
 
 STATISTICS = ("max", "mean", "median", "rmse")
@@ -118,7 +119,6 @@ def run_task(task: RunTask) -> RunOutcome:
         (task.run_dir / ERROR_FILE).unlink(missing_ok=True)
         return RunOutcome(task.key, result.metrics, None, None, time.perf_counter() - start)
     except Exception as exc:
-        first = next((line for line in str(exc).splitlines() if line.strip()), "")
-        message = f"{type(exc).__name__}: {first}"
+        message = f"{type(exc).__name__}: {first_line(str(exc))}"
         details = traceback.format_exc()
         return RunOutcome(task.key, None, message, details, time.perf_counter() - start)

@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 
 from pipeline.config import Isam2Config
-from pipeline.errors import SolverError
+from pipeline.errors import SolverError, first_line
 
 
 class Isam2Solver:
@@ -53,9 +53,9 @@ class Isam2Solver:
         factors' keys and every relinearised variable): the variables whose estimate moved."""
         try:
             result = self.isam.update(self._graph, self._values, self._removals)
-        except RuntimeError as exc:  # GTSAM's messages open with a blank line and run to ten
-            first = next((line for line in str(exc).splitlines() if line.strip()), "")
-            raise SolverError(f"iSAM2 update {self.num_updates} failed: {first}") from exc
+        except RuntimeError as exc:
+            message = f"iSAM2 update {self.num_updates} failed: {first_line(str(exc))}"
+            raise SolverError(message) from exc
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot
         self._graph = gtsam.NonlinearFactorGraph()

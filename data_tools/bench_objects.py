@@ -21,7 +21,6 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
 import argparse  # noqa: E402
-import logging  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable  # noqa: E402
@@ -34,8 +33,6 @@ from pipeline.datasets.kitti import StereoIntrinsics  # noqa: E402
 from pipeline.frontend import objects as ob  # noqa: E402
 from pipeline.frontend import stereo_range as sr  # noqa: E402
 from pipeline.frontend.config import load_frontend_config  # noqa: E402
-
-log = logging.getLogger(__name__)
 
 WIDTH, HEIGHT = 1226, 370
 # KITTI 04-12's left camera (calib.txt).
@@ -93,20 +90,17 @@ def main(argv: list[str] | None = None) -> int:
         "--input-size", action="append", default=None, help="WxH, repeatable (832x256, 416x416)"
     )
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    logging.getLogger(ob.__name__).setLevel(logging.WARNING)  # keep the table together
     cv2.setNumThreads(1)
     sizes = args.input_size or ["832x256", "416x416"]
 
     pairs = sequence_pairs(args.sequence, args.frames) if args.sequence else motorcycle_pairs()
     frames = [pairs[i % len(pairs)] for i in range(args.frames)]
     shape = frames[0][0].shape
-    log.info("%d stereo pairs of %dx%d, one core", len(frames), shape[1], shape[0])
-
-    log.info("\n%-34s %10s %8s", "stage", "ms/frame", "frames/s")
+    print(f"{len(frames)} stereo pairs of {shape[1]}x{shape[0]}, one core\n")
+    print(f"{'stage':34s} {'ms/frame':>10s} {'frames/s':>8s}")
 
     def row(name: str, seconds: float, count: int) -> None:
-        log.info("%-34s %10.1f %8.1f", name, 1e3 * seconds / count, count / seconds)
+        print(f"{name:34s} {1e3 * seconds / count:10.1f} {count / seconds:8.1f}", flush=True)
 
     if ob.resolve_model_path(ob.DEFAULT_MODEL).exists():
         for size in sizes:
@@ -121,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             row(f"detect, yolov3-tiny {width}x{height}", seconds, len(frames))
     else:
-        log.info("detector: no model (python -m data_tools.models install); skipped")
+        print("detector: no model (python -m data_tools.models install); skipped")
 
     config = load_frontend_config().objects.stereo
     boxes = boxes_for(shape)

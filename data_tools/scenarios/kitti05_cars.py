@@ -53,7 +53,7 @@ from pipeline.datasets.kitti import (
     read_times,
 )
 from pipeline.errors import InputError
-from pipeline.log import Detection, GroundTruthLandmark, StereoCalibration
+from pipeline.log import Detection, GroundTruthLandmark
 
 logger = logging.getLogger(__name__)
 
@@ -482,20 +482,6 @@ def class_names(vehicles: tuple[VehicleClass, ...], num_classes: int) -> list[st
     return names
 
 
-def calibration_of(camera: StereoIntrinsics, stamp_ns: int) -> StereoCalibration:
-    return StereoCalibration(
-        stamp_ns=stamp_ns,
-        width=camera.width,
-        height=camera.height,
-        fx=camera.fx,
-        fy=camera.fy,
-        cx=camera.cx,
-        cy=camera.cy,
-        baseline=camera.baseline,
-        body_from_camera=floats(BODY_FROM_CAMERA),
-    )
-
-
 def simulate(
     config: Kitti05CarsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
@@ -548,5 +534,5 @@ def simulate(
         metadata=metadata_for(
             num_classes, confusion, names, source_text(NAME, options, config_path)
         ),
-        calibration=calibration_of(config.camera, int(world.times_ns[0])),
+        calibration=config.camera.calibration_message(int(world.times_ns[0])),
     )

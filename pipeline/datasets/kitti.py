@@ -15,6 +15,7 @@ import numpy as np
 
 from pipeline.datasets.stereo import StereoSequence, image_files, read_grey
 from pipeline.errors import InputError
+from pipeline.log import StereoCalibration
 
 # Columns: the camera's x (right), y (down) and z (forward) axes in the body frame.
 BODY_FROM_CAMERA_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -37,6 +38,20 @@ class StereoIntrinsics:
     @property
     def camera_matrix(self) -> np.ndarray:
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def calibration_message(self, stamp_ns: int) -> StereoCalibration:
+        """The log's /calibration message: these intrinsics on the body frame's camera mount."""
+        return StereoCalibration(
+            stamp_ns=stamp_ns,
+            width=self.width,
+            height=self.height,
+            fx=self.fx,
+            fy=self.fy,
+            cx=self.cx,
+            cy=self.cy,
+            baseline=self.baseline,
+            body_from_camera=tuple(float(v) for v in BODY_FROM_CAMERA.ravel()),
+        )
 
 
 def read_poses(path: str | Path) -> np.ndarray:

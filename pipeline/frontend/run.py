@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, KittiSequence, camera_poses_to_body
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
 from pipeline.datasets.plain import CALIBRATION_FILE, PlainSequence
 from pipeline.errors import InputError
 from pipeline.frontend.apriltags import AprilTagDetector, tag_detection
@@ -44,7 +44,6 @@ from pipeline.log import (
     LogMetadata,
     LogWriter,
     Odometry,
-    StereoCalibration,
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
 
@@ -305,20 +304,7 @@ def write_log(
     detections, ground-truth pose and (if `images` says how) images."""
     stamps = stamps_ns(sequence.times)
     with LogWriter(out, metadata) as writer:
-        k = sequence.intrinsics
-        writer.write(
-            StereoCalibration(
-                stamp_ns=stamps[0],
-                width=k.width,
-                height=k.height,
-                fx=k.fx,
-                fy=k.fy,
-                cx=k.cx,
-                cy=k.cy,
-                baseline=k.baseline,
-                body_from_camera=tuple(float(v) for v in BODY_FROM_CAMERA.ravel()),
-            )
-        )
+        writer.write(sequence.intrinsics.calibration_message(stamps[0]))
         if truth is not None:
             writer.write(dataclasses.replace(truth, stamp_ns=stamps[0]))
         frames = keyframes.frames

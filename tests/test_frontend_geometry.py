@@ -9,20 +9,11 @@ import pytest
 
 from pipeline.datasets.kitti import StereoIntrinsics
 from pipeline.frontend import geometry as g
+from tests.numerics import numerical_jacobian
 
 INTRINSICS = StereoIntrinsics(
     width=640, height=480, fx=500.0, fy=480.0, cx=320.0, cy=240.0, baseline=0.5
 )
-
-
-def numerical_jacobian(function, x: np.ndarray, step: float = 1e-6) -> np.ndarray:
-    x = np.asarray(x, float)
-    columns = []
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx[i] = step
-        columns.append((function(x + dx) - function(x - dx)) / (2 * step))
-    return np.stack(columns, axis=-1)
 
 
 def test_body_from_camera_turns_optical_axes_into_rep103():

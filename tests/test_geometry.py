@@ -8,6 +8,7 @@ from pipeline import geometry as lie
 from pipeline.backend import geometry as g
 from pipeline.backend.factors import point_measurement_factor, unit3_range_covariance
 from pipeline.log.messages import Detection
+from tests.numerics import numerical_jacobian
 
 RNG = np.random.default_rng(7)
 
@@ -16,16 +17,6 @@ def random_pose(scale: float = 3.0) -> gtsam.Pose3:
     return gtsam.Pose3.Expmap(
         np.concatenate([RNG.normal(size=3) * 0.5, RNG.normal(size=3) * scale])
     )
-
-
-def numerical_jacobian(f, x0: np.ndarray, retract, dim: int, eps: float = 1e-6) -> np.ndarray:
-    f0 = f(x0)
-    J = np.zeros((f0.size, dim))
-    for k in range(dim):
-        d = np.zeros(dim)
-        d[k] = eps
-        J[:, k] = (f(retract(x0, d)) - f(retract(x0, -d))) / (2 * eps)
-    return J
 
 
 def test_bearing_elevation_range_of_hand_computed_points():

@@ -14,6 +14,7 @@ from pipeline.errors import InputError
 from pipeline.frontend import geometry as g
 from pipeline.frontend import stereo_range as sr
 from pipeline.frontend.config import load_frontend_config
+from tests.numerics import numerical_jacobian
 
 INTRINSICS = StereoIntrinsics(
     width=640, height=480, fx=700.0, fy=690.0, cx=320.0, cy=240.0, baseline=0.5
@@ -22,16 +23,6 @@ INTRINSICS = StereoIntrinsics(
 CONFIG = dataclasses.replace(
     load_frontend_config().objects.stereo, surface_to_centre=0.0, surface_to_centre_sigma=0.0
 )
-
-
-def numerical_jacobian(function, x: np.ndarray, step: float = 1e-5) -> np.ndarray:
-    x = np.asarray(x, float)
-    columns = []
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx[i] = step
-        columns.append((function(x + dx) - function(x - dx)) / (2 * step))
-    return np.stack(columns, axis=-1)
 
 
 # --- pure math -------------------------------------------------------------------------------
@@ -99,7 +90,7 @@ def test_measurement_covariance_matches_numerical_jacobian():
         point_body = g.BODY_FROM_CAMERA_ROTATION @ g.triangulate(x, INTRINSICS)
         return g.bearing_elevation_range(point_body)
 
-    jacobian = numerical_jacobian(measurement, uvd)
+    jacobian = numerical_jacobian(measurement, uvd, step=1e-5)
     point, covariance = sr.stereo_point(uvd, pixel_covariance, INTRINSICS)
     values, measured = sr.body_measurement(point, covariance)
     np.testing.assert_allclose(values, measurement(uvd), rtol=1e-12)

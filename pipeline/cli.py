@@ -134,7 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     simulate = commands.add_parser("simulate", help="write a log from a built-in scenario")
-    simulate.add_argument("scenario", choices=("indoor-tags", "kitti05-cars"))
+    simulate.add_argument(
+        "scenario", choices=("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
+    )
     simulate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
     simulate.add_argument("--seed", type=int, default=0, help="draws all noise (default 0)")
     simulate.add_argument(

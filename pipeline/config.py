@@ -9,13 +9,21 @@ from pipeline import settings
 from pipeline.errors import InputError
 
 MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
+FIRST_CHOICES = ("joint", "prediction", "weights")
+NULL_MODELS = ("relative", "literal")
 
 
 @dataclass(frozen=True)
 class AssociationConfig:
     chi2_confidence: float
     null_weight: float
+    null_model: str
     null_sigma: float
+    null_crossover_sq: float
+    joint_candidate_confidence: float
+    joint_confidence: float
+    ambiguity_log_odds: float
+    max_search_nodes: int
     joint_marginals: bool
     min_weight: float
     search_sigmas: float
@@ -36,7 +44,22 @@ class GpdaConfig:
 @dataclass(frozen=True)
 class MixtureConfig:
     selection: str
+    first_choice: str
     max_switch_rounds: int
+
+
+@dataclass(frozen=True)
+class MergeConfig:
+    enabled: bool
+    every_keyframes: int
+    recent_keyframes: int
+    confidence: float
+    local_confidence: float
+    search_sigmas: float
+    min_class_agreement: float
+    margin_pairs: int
+    min_loop_pairs: int
+    max_search_nodes: int
 
 
 @dataclass(frozen=True)
@@ -58,6 +81,7 @@ class Config:
     landmarks: LandmarkConfig
     gpda: GpdaConfig
     mixture: MixtureConfig
+    merges: MergeConfig
     isam2: Isam2Config
     prior: PriorConfig
 
@@ -77,6 +101,36 @@ def _check(config: Config, path: Path) -> None:
         raise InputError(f"config {path}: association.null_weight must be in (0, 1)")
     if a.null_sigma <= 0.0:
         raise InputError(f"config {path}: association.null_sigma must be positive")
+    if a.null_model not in NULL_MODELS:
+        raise InputError(
+            f"config {path}: association.null_model must be one of {', '.join(NULL_MODELS)}"
+        )
+    if not (0.0 < a.joint_confidence < 1.0 and 0.0 < a.joint_candidate_confidence < 1.0):
+        raise InputError(
+            f"config {path}: association.joint_confidence and joint_candidate_confidence must "
+            "be in (0, 1)"
+        )
+    if a.ambiguity_log_odds < 0.0 or a.max_search_nodes < 1:
+        raise InputError(
+            f"config {path}: association.ambiguity_log_odds >= 0, max_search_nodes >= 1"
+        )
+    if a.null_crossover_sq <= 0.0:
+        raise InputError(f"config {path}: association.null_crossover_sq must be positive")
+    if config.mixture.first_choice not in FIRST_CHOICES:
+        raise InputError(
+            f"config {path}: mixture.first_choice must be one of {', '.join(FIRST_CHOICES)}"
+        )
+    g = config.merges
+    if not (0.0 < g.confidence < 1.0 and 0.0 < g.local_confidence < 1.0) or not (
+        0.0 <= g.min_class_agreement <= 1.0
+    ):
+        raise InputError(
+            f"config {path}: merges.confidence in (0, 1), min_class_agreement in [0, 1]"
+        )
+    if min(g.every_keyframes, g.recent_keyframes, g.max_search_nodes) < 1 or g.search_sigmas <= 0:
+        raise InputError(f"config {path}: merges counts must be >= 1, search_sigmas positive")
+    if g.margin_pairs < 0 or g.min_loop_pairs < 1:
+        raise InputError(f"config {path}: merges.margin_pairs >= 0, min_loop_pairs >= 1")
     if config.mixture.selection not in MIXTURE_SELECTIONS:
         raise InputError(
             f"config {path}: mixture.selection must be one of {', '.join(MIXTURE_SELECTIONS)}"

@@ -120,7 +120,9 @@ def compute_metrics(
         "translation_error_m": translation,
         "rotation_error_rad": rotation,
         "association": counts,
+        "association_one_to_one": evaluation.association_scores(truth, chosen),
         "switches": result.switches,
+        "merges": result.merges,
     }
 
 

@@ -144,6 +144,8 @@ def scenario_params(scenario: str) -> list:
 
 
 ALL = [scenario_params(s) for s in SCENARIOS]
+# planar-park's odometry errs by a slow bias instead (tests/test_scenario_worlds.py).
+PAPER_ODOMETRY = [scenario_params(s) for s in SCENARIOS if s != "planar-park"]
 
 
 # --- odometry -------------------------------------------------------------------------------
@@ -159,7 +161,7 @@ def test_odometry_noise_matches_requested_sigmas(run):
     assert_standard_normal(xi / sigmas, f"{scenario} odometry residuals / true sigmas")
 
 
-@pytest.mark.parametrize("scenario", ALL)
+@pytest.mark.parametrize("scenario", PAPER_ODOMETRY)
 def test_log_covariance_is_the_calibrated_model_by_default(run, scenario):
     scale = 10.0
     _, log, _ = run(scenario, odom_noise_scale=scale)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from data_tools.scenarios import indoor_tags, kitti05_cars
+from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_park
 from data_tools.scenarios.common import (
     SimulationOptions,
     SimulationSummary,
@@ -18,7 +18,12 @@ from data_tools.scenarios.common import (
 )
 from pipeline.errors import InputError
 
-_MODULES = {indoor_tags.NAME: indoor_tags, kitti05_cars.NAME: kitti05_cars}
+_MODULES = {
+    indoor_tags.NAME: indoor_tags,
+    kitti05_cars.NAME: kitti05_cars,
+    city_grid.NAME: city_grid,
+    planar_park.NAME: planar_park,
+}
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
 
 __all__ = ["SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]

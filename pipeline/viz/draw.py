@@ -130,14 +130,20 @@ def detection_hypotheses(
 
     GPDA's record keeps the current EM weights; a mixture keeps its components; ML commits to
     one landmark but weighed all the candidates; a detection without candidates is a new
-    landmark (or, with `known`, the true one). The null hypothesis comes last where it is a
-    component. `created`: the record's landmark was made by this detection."""
+    landmark (or, with `known`, the true one), also when mm-nh found its candidates too
+    unsure. The null hypothesis comes last where it is a component. `created`: the record's
+    landmark was made by this detection."""
     if record.graph_weights is not None:
         ids, weights = list(record.landmark_ids), np.asarray(record.graph_weights, dtype=float)
-    elif len(candidates) > len(record.landmark_ids):
-        ids, weights = [int(j) for j in candidates.landmark_ids], candidates.weights
     else:
-        ids, weights = list(record.landmark_ids), np.asarray(record.weights, dtype=float)
+        # Every candidate weighed, with the record's own weight where it is a component (a
+        # mixture's weights leave room for the null); then a landmark the detection made
+        # itself because no candidate was a sure match.
+        own = dict(zip((int(j) for j in record.landmark_ids), record.weights, strict=True))
+        ids = [int(j) for j in candidates.landmark_ids]
+        weights = [own.get(j, w) for j, w in zip(ids, candidates.weights, strict=True)]
+        ids += [j for j in own if j not in ids]
+        weights = np.array(weights + [own[j] for j in ids[len(weights) :]], dtype=float)
     winner = record.landmark_id
     k = record.measurement.detection_index
     out = [

@@ -12,6 +12,7 @@ the final estimate. Entity paths: `pipeline/viz/entities.py`.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -474,12 +475,25 @@ class RerunSink:
         i = report.pose_index
         stamp = self._stamp(i)
         self._set_time(i, stamp)
-        # Landmark ids are consecutive: ids from the count before this keyframe are new ones.
+        for duplicate, _ in report.merged:  # drawn now as the landmark it was merged into
+            self.rec.log(e.landmark_path(duplicate), rr.Clear(recursive=True))
+            self._landmarks.pop(duplicate, None)
+        # Landmark ids are never reused: ids from the next one before this keyframe are new.
         hypotheses = [
             draw.detection_hypotheses(r, c, r.landmark_id >= self._landmark_total)
             for r, c in zip(report.records, report.candidates, strict=True)
         ]
-        self._landmark_total = len(backend.landmarks)
+        self._landmark_total = backend.landmarks.next_id
+        resolve = backend.landmarks.resolve
+        hypotheses = [
+            [
+                dataclasses.replace(h, landmark_id=resolve(h.landmark_id))
+                if h.landmark_id != NULL
+                else h
+                for h in hs
+            ]
+            for hs in hypotheses
+        ]
         touched = {h.landmark_id for hs in hypotheses for h in hs if h.landmark_id != NULL}
         for record in report.switched:
             touched.update(record.landmark_ids)

@@ -53,9 +53,13 @@ class VoConfig:
     ransac_iterations: int
     refine_iterations: int
     min_inliers: int
+    min_inlier_fraction: float
+    recovery_features: int
+    recovery_ratio: float
     pixel_sigma: float
     min_sigma_rotation: float
     min_sigma_translation: float
+    translation_sigma_fraction: float
     lost_sigma_rotation: float
     lost_sigma_translation: float
 
@@ -166,6 +170,10 @@ def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>")
     need(v.tracking_levels >= 0 and v.stereo_levels >= 0, "vo pyramid levels must be >= 0")
     need(0.0 < v.min_disparity < v.max_disparity, "vo: need 0 < min_disparity < max_disparity")
     need(v.min_inliers >= 6, "vo.min_inliers must be >= 6")
+    need(0.0 <= v.min_inlier_fraction <= 1.0, "vo.min_inlier_fraction must be in [0, 1]")
+    need(v.recovery_features >= 10, "vo.recovery_features must be >= 10")
+    need(0.0 < v.recovery_ratio <= 1.0, "vo.recovery_ratio must be in (0, 1]")
+    need(v.translation_sigma_fraction >= 0.0, "vo.translation_sigma_fraction must be >= 0")
     need(v.ransac_iterations >= 1 and v.refine_iterations >= 1, "vo iteration counts >= 1")
     for name in (
         "max_backward_error",

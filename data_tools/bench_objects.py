@@ -40,7 +40,11 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from pipeline.datasets.kitti import StereoIntrinsics, read_calibration  # noqa: E402
+from pipeline.datasets.kitti import (  # noqa: E402
+    StereoIntrinsics,
+    read_calibration,
+    read_calibration_rows,
+)
 from pipeline.datasets.stereo import read_image, to_grey  # noqa: E402
 from pipeline.frontend import objects as ob  # noqa: E402
 from pipeline.frontend import stereo_range as sr  # noqa: E402
@@ -176,20 +180,10 @@ def _centre(box: Box) -> tuple[float, float]:
 # --- the KITTI object frame against its LiDAR --------------------------------------------------
 
 
-def read_kitti_matrices(path: Path) -> dict[str, np.ndarray]:
-    """The named rows of a KITTI object `calib.txt` (`P2: 12 numbers`, `R0_rect: 9`, ...)."""
-    matrices = {}
-    for line in path.read_text().splitlines():
-        if ":" in line:
-            name, values = line.split(":", 1)
-            matrices[name.strip()] = np.array([float(v) for v in values.split()])
-    return matrices
-
-
 def lidar_in_left_camera(root: Path = OBJECT_FRAME) -> tuple[np.ndarray, np.ndarray]:
     """The Velodyne points of a KITTI object frame in front of the left colour camera: their
     pixels (N, 2) and camera-frame points (N, 3), through Tr_velo_to_cam, R0_rect and P2."""
-    m = read_kitti_matrices(root / "calib.txt")
+    m = read_calibration_rows(root / "calib.txt")
     p2 = m["P2"].reshape(3, 4)
     rectified = np.eye(4)
     rectified[:3, :3] = m["R0_rect"].reshape(3, 3)

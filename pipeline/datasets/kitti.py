@@ -128,23 +128,32 @@ def check_intrinsics(intrinsics: StereoIntrinsics, where: str) -> None:
         )
 
 
+def read_calibration_rows(path: str | Path) -> dict[str, np.ndarray]:
+    """The named rows of a KITTI calibration file (`P0: 12 numbers`, `R0_rect: 9 numbers`,
+    ...) as flat arrays."""
+    path = Path(path)
+    rows = {}
+    try:
+        for line in path.read_text().splitlines():
+            if ":" in line:
+                name, values = line.split(":", 1)
+                rows[name.strip()] = np.array([float(v) for v in values.split()])
+    except (OSError, ValueError) as exc:
+        raise InputError(f"calibration {path}: cannot read ({exc})") from None
+    return rows
+
+
 def read_calibration(
     path: str | Path, width: int, height: int, cameras: tuple[str, str] = ("P0", "P1")
 ) -> StereoIntrinsics:
     """`calib.txt` (lines `P0: 12 numbers` ...): the left intrinsics and the stereo baseline of
     the `cameras` pair (KITTI: P0, P1 grey; P2, P3 colour), checked against the image size."""
     path = Path(path)
-    projections: dict[str, np.ndarray] = {}
-    try:
-        for line in path.read_text().splitlines():
-            if ":" not in line:
-                continue
-            name, values = line.split(":", 1)
-            numbers = np.array([float(v) for v in values.split()])
-            if numbers.size == 12:
-                projections[name.strip()] = numbers.reshape(3, 4)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"calibration {path}: cannot read ({exc})") from None
+    projections = {
+        name: row.reshape(3, 4)
+        for name, row in read_calibration_rows(path).items()
+        if row.size == 12
+    }
     left_name, right_name = cameras
     if left_name not in projections or right_name not in projections:
         raise InputError(

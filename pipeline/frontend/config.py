@@ -53,9 +53,13 @@ class VoConfig:
     ransac_iterations: int
     refine_iterations: int
     min_inliers: int
+    min_inlier_fraction: float
+    recovery_features: int
+    recovery_ratio: float
     pixel_sigma: float
     min_sigma_rotation: float
     min_sigma_translation: float
+    translation_sigma_fraction: float
     lost_sigma_rotation: float
     lost_sigma_translation: float
 
@@ -102,11 +106,13 @@ class ObjectDetectorConfig:
     model: str  # a bare file name is looked up in the models directory
     class_names_file: str
     input_size: tuple[int, int]
-    confidence_threshold: float
     nms_iou: float
+    nested_fraction: float
+    nested_sigmas: float
     num_threads: int
     classes: tuple[str, ...]
     class_map: dict  # detector class name -> one of `classes`
+    thresholds: dict  # model file name -> the score a box must reach
     stereo: StereoRangeConfig
 
     @property
@@ -114,6 +120,11 @@ class ObjectDetectorConfig:
         from pipeline.frontend.objects import resolve_model_path
 
         return resolve_model_path(self.model)
+
+    @property
+    def confidence_threshold(self) -> float:
+        """The score threshold of the configured model (`thresholds`, by its file name)."""
+        return float(self.thresholds[Path(self.model).name])
 
 
 @dataclass(frozen=True)
@@ -166,6 +177,10 @@ def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>")
     need(v.tracking_levels >= 0 and v.stereo_levels >= 0, "vo pyramid levels must be >= 0")
     need(0.0 < v.min_disparity < v.max_disparity, "vo: need 0 < min_disparity < max_disparity")
     need(v.min_inliers >= 6, "vo.min_inliers must be >= 6")
+    need(0.0 <= v.min_inlier_fraction <= 1.0, "vo.min_inlier_fraction must be in [0, 1]")
+    need(v.recovery_features >= 10, "vo.recovery_features must be >= 10")
+    need(0.0 < v.recovery_ratio <= 1.0, "vo.recovery_ratio must be in (0, 1]")
+    need(v.translation_sigma_fraction >= 0.0, "vo.translation_sigma_fraction must be >= 0")
     need(v.ransac_iterations >= 1 and v.refine_iterations >= 1, "vo iteration counts >= 1")
     for name in (
         "max_backward_error",
@@ -185,8 +200,18 @@ def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>")
     need(1 <= o.jpeg_quality <= 100, "output.jpeg_quality must be in 1..100")
     need(0.0 < o.truth_min_iou <= 1.0, "output.truth_min_iou must be in (0, 1]")
     ob = config.objects
-    need(0.0 < ob.confidence_threshold <= 1.0, "objects.confidence_threshold must be in (0, 1]")
+    model = Path(ob.model).name
+    need(
+        model in ob.thresholds,
+        f"objects.thresholds has no score threshold for the model {model!r}: scores differ "
+        "between models, measure one (python -m data_tools.bench_objects --thresholds)",
+    )
+    for name, value in ob.thresholds.items():
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and 0.0 < value <= 1.0
+        need(ok, f"objects.thresholds.{name!r} must be a number in (0, 1]")
     need(0.0 < ob.nms_iou <= 1.0, "objects.nms_iou must be in (0, 1]")
+    need(0.0 < ob.nested_fraction <= 1.0, "objects.nested_fraction must be in (0, 1]")
+    need(ob.nested_sigmas > 0.0, "objects.nested_sigmas must be positive")
     need(ob.num_threads >= 1, "objects.num_threads must be >= 1")
     need(
         min(ob.input_size) >= 32 and all(v % 32 == 0 for v in ob.input_size),

@@ -36,7 +36,9 @@ class KeyframeReport:
     pose_index: int
     records: list[AssociationRecord]
     candidates: list[Candidates]
-    switched: list[AssociationRecord]  # earlier associations this keyframe changed
+    # Associations this keyframe changed (once each): earlier detections', and its own where
+    # refine moved them off their first choice. One that left and came back is not in it.
+    switched: list[AssociationRecord]
     seconds: float
 
 
@@ -63,6 +65,9 @@ class Backend:
         self.num_poses = 0
         self.switches = 0
         self.step_seconds: list[float] = []
+        # (pose, detection) -> landmark as last reported: refine's rounds may switch a record
+        # away and back within one keyframe, which is no change.
+        self._reported: dict[tuple[int, int], int] = {}
 
     def _add_origin(self) -> gtsam.Pose3:
         p = self.config.prior
@@ -113,16 +118,28 @@ class Backend:
             self.method.associate(m, c) for m, c in zip(measurements, candidates, strict=True)
         ]
         self.records.extend(records)
+        for r in records:
+            self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
         self.num_poses += 1
         marked = self.solver.update()
         switched: list[AssociationRecord] = []
         if self.method.uses_candidates:  # known association needs no map search or revisits
-            switched = self.method.refine(self.context.after_update(marked))
+            switched = self._changed(self.method.refine(self.context.after_update(marked)))
         self.switches += len(switched)
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
-        unique = list({id(r): r for r in switched}.values())
-        return KeyframeReport(prediction.pose_index, records, candidates, unique, seconds)
+        return KeyframeReport(prediction.pose_index, records, candidates, switched, seconds)
+
+    def _changed(self, switched: list[AssociationRecord]) -> list[AssociationRecord]:
+        """The records among `switched` whose landmark now differs from the one last reported,
+        once each, in the order of their first switch."""
+        changed = []
+        for r in {id(r): r for r in switched}.values():
+            key = (r.measurement.pose_index, r.measurement.detection_index)
+            if r.landmark_id != self._reported[key]:
+                self._reported[key] = r.landmark_id
+                changed.append(r)
+        return changed
 
     def result(self) -> BackendResult:
         self.method.finish()

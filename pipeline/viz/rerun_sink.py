@@ -272,7 +272,11 @@ class RerunSink:
         return cls(recording, config)
 
     def _begin(
-        self, blueprint: Any, name: str, class_names: tuple[str, ...], legend: list[Any]
+        self,
+        blueprint: Any,
+        name: str,
+        class_names: tuple[str, ...],
+        legend: list[draw.LegendItem],
     ) -> None:
         if self._started:
             raise RuntimeError("a RerunSink records one run")
@@ -301,35 +305,31 @@ class RerunSink:
         self._log_legend(legend)
 
     def _log_legend(self, items: list[draw.LegendItem]) -> None:
-        """The swatches of the legend view, each labelled below (static)."""
+        """The swatches of the legend view, each labelled below (static): a short line for
+        lines, a dot for marks."""
         centres = draw.legend_positions(len(items), legend_per_row(len(items)), LEGEND_SPACING)
         half = np.array([0.35 * LEGEND_SPACING, 0.0])
-        lines = [(c, item) for c, item in zip(centres, items, strict=True) if item.line]
-        marks = [(c, item) for c, item in zip(centres, items, strict=True) if not item.line]
-        if lines:
-            self.rec.log(
-                e.LEGEND_LINES,
+        for line in (True, False):
+            chosen = [
+                (c, item) for c, item in zip(centres, items, strict=True) if item.line == line
+            ]
+            if not chosen:
+                continue
+            style = {
+                "colors": draw.packed_rgba([item.rgb for _, item in chosen]),
+                "labels": [item.label for _, item in chosen],
+                "show_labels": True,
+            }
+            swatches = (
                 rr.LineStrips2D(
-                    [np.array([c - half, c + half]) for c, _ in lines],
-                    colors=draw.packed_rgba([item.rgb for _, item in lines]),
-                    labels=[item.label for _, item in lines],
+                    [np.array([c - half, c + half]) for c, _ in chosen],
                     radii=rr.Radius.ui_points(3.0),
-                    show_labels=True,
-                ),
-                static=True,
+                    **style,
+                )
+                if line
+                else rr.Points2D([c for c, _ in chosen], radii=rr.Radius.ui_points(6.0), **style)
             )
-        if marks:
-            self.rec.log(
-                e.LEGEND_MARKS,
-                rr.Points2D(
-                    [c for c, _ in marks],
-                    colors=draw.packed_rgba([item.rgb for _, item in marks]),
-                    labels=[item.label for _, item in marks],
-                    radii=rr.Radius.ui_points(6.0),
-                    show_labels=True,
-                ),
-                static=True,
-            )
+            self.rec.log(e.LEGEND_LINES if line else e.LEGEND_MARKS, swatches, static=True)
 
     def _set_time(self, pose_index: int, stamp_ns: int) -> None:
         self.rec.set_time(e.POSE_TIMELINE, sequence=pose_index)
@@ -674,15 +674,18 @@ class RerunSink:
             ]
             # Their uncertainty, as the association step saw it: only these, so that the map
             # stays readable (every landmark's is under `UNCERTAINTY`, hidden by default).
-            shaped = [k for k, j in enumerate(weighed) if self._landmarks[j].ellipsoid is not None]
+            shaped = [
+                (centre, self._landmarks[j].ellipsoid, c)
+                for j, centre, c in zip(weighed, centres, classes, strict=True)
+                if self._landmarks[j].ellipsoid is not None
+            ]
             if shaped:
-                shapes = [self._landmarks[weighed[k]].ellipsoid for k in shaped]
                 parts.append(
                     rr.Ellipsoids3D(
-                        centers=[centres[k] for k in shaped],
-                        half_sizes=[half for half, _ in shapes],
-                        quaternions=[q for _, q in shapes],
-                        colors=self._colours[[classes[k] for k in shaped]],
+                        centers=[centre for centre, _, _ in shaped],
+                        half_sizes=[shape[0] for _, shape, _ in shaped],
+                        quaternions=[shape[1] for _, shape, _ in shaped],
+                        colors=self._colours[[c for _, _, c in shaped]],
                         fill_mode="MajorWireframe",
                         line_radii=rr.Radius.ui_points(1.0),
                     )

@@ -158,9 +158,14 @@ def test_every_landmark_has_its_entity_ending_at_the_final_estimate(square_run):
         assert latest(entity, "Points3D:labels")[0].startswith(f"L{j} {names[landmark.map_class]}")
         assert latest(entity, "Points3D:class_ids")[0] == landmark.map_class
         assert latest(entity, "Points3D:show_labels") == [False]  # labels on hover only
-        shape = rows[e.uncertainty_path(j)]
-        np.testing.assert_allclose(latest(shape, "Ellipsoids3D:centers")[0], value, atol=1e-4)
-        assert np.all(np.array(latest(shape, "Ellipsoids3D:half_sizes")[0]) > 0)
+    # every landmark's ellipsoid, at the final estimate, on the uncertainty layer
+    shapes = rows[e.UNCERTAINTY]
+    labels = latest(shapes, "Ellipsoids3D:labels")
+    assert labels == [f"L{j}" for j in final.landmark_ids]
+    centres = np.array(latest(shapes, "Ellipsoids3D:centers"))
+    np.testing.assert_allclose(centres, np.array(final.landmark_values), atol=1e-4)
+    assert np.all(np.array(latest(shapes, "Ellipsoids3D:half_sizes")) > 0)
+    assert len(data_rows(shapes, "Ellipsoids3D:centers")) < len(final.poses)  # not a keyframe
 
 
 def test_each_detection_shows_every_hypothesis_and_one_winner(square_run):

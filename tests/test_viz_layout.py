@@ -149,4 +149,4 @@ def test_the_event_log_shows_level_and_text_and_the_uncertainty_layer_is_off(run
     assert not any(c["visible"] for c in columns["TextLogColumns:timeline_columns"])
     hidden = views["Map"].properties["ViewContents/overrides/world/uncertainty/visualizers"]
     assert hidden["EntityBehavior:visible"] == [False]
-    assert data_rows(read_rows(rrd)[e.uncertainty_path(0)], "Ellipsoids3D:half_sizes")
+    assert data_rows(read_rows(rrd)[e.UNCERTAINTY], "Ellipsoids3D:half_sizes")

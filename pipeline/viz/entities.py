@@ -14,10 +14,11 @@ GROUND_TRUTH_TRAJECTORY = "/world/trajectory/ground_truth"  # aligned at pose 0
 ODOMETRY_TRAJECTORY = "/world/trajectory/odometry"  # dead reckoning from pose 0
 GROUND_TRUTH_LANDMARKS = "/world/ground_truth/landmarks"
 
-# One child a landmark, /world/landmarks/<id>: its point (coloured and labelled by MAP class);
-# and /world/uncertainty/<id>: its uncertainty ellipsoid (hidden in the default layout: hundreds
-# of them hide the map; those of the landmarks a keyframe weighs are drawn by CANDIDATES).
+# One child a landmark, /world/landmarks/<id>: its point (coloured and labelled by MAP class).
 LANDMARKS = "/world/landmarks"
+# Every landmark's uncertainty ellipsoid, re-logged at every refresh and at the end: hidden in
+# the default layout (hundreds of them hide the map); those of the landmarks a keyframe weighs
+# are drawn with CANDIDATES.
 UNCERTAINTY = "/world/uncertainty"
 
 # This keyframe's detections: a line from the pose to every landmark each may be (and to its
@@ -64,7 +65,3 @@ TIME_TIMELINE = "log_time"
 
 def landmark_path(landmark_id: int) -> str:
     return f"{LANDMARKS}/{landmark_id}"
-
-
-def uncertainty_path(landmark_id: int) -> str:
-    return f"{UNCERTAINTY}/{landmark_id}"

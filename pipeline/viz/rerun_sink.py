@@ -471,10 +471,10 @@ class RerunSink:
         *,
         unless_unchanged: bool = False,
     ) -> None:
-        """A landmark's point, coloured and labelled by its MAP class, with its ellipsoid. A
-        `covariance` of None keeps the one last shown, moved with the landmark. Only what
-        changed since the landmark was last shown is logged (Rerun keeps the rest), and with
-        `unless_unchanged` nothing if nothing visibly changed."""
+        """A landmark's point, coloured and labelled by its MAP class; its ellipsoid is kept for
+        `CANDIDATES` and `UNCERTAINTY`. A `covariance` of None keeps the one last shown, moved
+        with the landmark. Only what changed since the landmark was last shown is logged (Rerun
+        keeps the rest), and with `unless_unchanged` nothing if nothing visibly changed."""
         position = row[9:].copy()
         c, label = self._landmark_label(landmarks, landmark_id)
         shown = self._landmarks.get(landmark_id)
@@ -482,39 +482,51 @@ class RerunSink:
         if covariance is not None:
             is_pose = landmarks.landmarks[landmark_id].kind is LandmarkKind.POSE
             world = draw.position_covariance(covariance, row[:9].reshape(3, 3) if is_pose else None)
-        if (
-            unless_unchanged
-            and shown is not None
-            and shown.label == label
-            and np.linalg.norm(position - shown.position) <= self.config.refresh_move_m
-            and not _differs(world, shown.covariance)
-        ):
+        point_changed = (
+            not unless_unchanged
+            or shown is None
+            or shown.label != label
+            or np.linalg.norm(position - shown.position) > self.config.refresh_move_m
+        )
+        if not point_changed and not _differs(world, shown.covariance):
             return
-        new_class = shown is None or shown.class_id != c
-        point: dict[str, Any] = {"positions": position[None]}
-        if new_class:  # coloured by the annotation context
-            point["class_ids"] = [c]
-        if shown is None:
-            # The label is for hovering and selecting: hundreds of them hide the map. The
-            # landmarks a keyframe weighs are labelled by `CANDIDATES`.
-            point.update(radii=rr.Radius.ui_points(5.0), show_labels=False)
-        if shown is None or shown.label != label:
-            point["labels"] = [label]
-        self.rec.log(e.landmark_path(landmark_id), rr.Points3D.from_fields(**point))
+        if point_changed:
+            point: dict[str, Any] = {"positions": position[None]}
+            if shown is None or shown.class_id != c:  # coloured by the annotation context
+                point["class_ids"] = [c]
+            if shown is None:
+                # The label is for hovering and selecting: hundreds of them hide the map. The
+                # landmarks a keyframe weighs are labelled by `CANDIDATES`.
+                point.update(radii=rr.Radius.ui_points(5.0), show_labels=False)
+            if shown is None or shown.label != label:
+                point["labels"] = [label]
+            self.rec.log(e.landmark_path(landmark_id), rr.Points3D.from_fields(**point))
+        else:
+            position = shown.position
         ellipsoid = None if shown is None else shown.ellipsoid
-        if world is not None:
-            shape: dict[str, Any] = {"centers": position[None]}
-            if covariance is not None or ellipsoid is None:
-                ellipsoid = draw.ellipsoid(world, self.config.ellipsoid_confidence)
-                shape.update(half_sizes=ellipsoid[0][None], quaternions=ellipsoid[1][None])
-            if new_class or shown.ellipsoid is None:
-                shape.update(
-                    colors=self._colours[c : c + 1],
-                    fill_mode="MajorWireframe",
-                    line_radii=rr.Radius.ui_points(ELLIPSOID_LINE_PT),
-                )
-            self.rec.log(e.uncertainty_path(landmark_id), rr.Ellipsoids3D.from_fields(**shape))
+        if world is not None and (covariance is not None or ellipsoid is None):
+            ellipsoid = draw.ellipsoid(world, self.config.ellipsoid_confidence)
         self._landmarks[landmark_id] = _Shown(position, label, c, world, ellipsoid)
+
+    def _log_uncertainty(self) -> None:
+        """Every landmark's ellipsoid as last shown, in one entity (a layer hidden by default,
+        so one call a refresh rather than one a landmark a keyframe)."""
+        shown = [(j, s) for j, s in sorted(self._landmarks.items()) if s.ellipsoid is not None]
+        if not shown:
+            return
+        self.rec.log(
+            e.UNCERTAINTY,
+            rr.Ellipsoids3D(
+                centers=[s.position for _, s in shown],
+                half_sizes=[s.ellipsoid[0] for _, s in shown],
+                quaternions=[s.ellipsoid[1] for _, s in shown],
+                colors=self._colours[[s.class_id for _, s in shown]],
+                labels=[f"L{j}" for j, _ in shown],
+                show_labels=False,
+                fill_mode="MajorWireframe",
+                line_radii=rr.Radius.ui_points(ELLIPSOID_LINE_PT),
+            ),
+        )
 
     def _refresh(self, backend: Backend, pose_index: int) -> None:
         """Send the held rows; then the whole trajectory, and every landmark that moved or
@@ -538,6 +550,7 @@ class RerunSink:
                 self._log_landmark(backend.landmarks, int(j), points[int(j)], None)
         for j in sorted(ids - set(shown)):
             self._log_landmark(backend.landmarks, j, points[j], None)
+        self._log_uncertainty()
 
     def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
         started = time.perf_counter()
@@ -673,7 +686,7 @@ class RerunSink:
                 )
             ]
             # Their uncertainty, as the association step saw it: only these, so that the map
-            # stays readable (every landmark's is under `UNCERTAINTY`, hidden by default).
+            # stays readable (every landmark's is in `UNCERTAINTY`, hidden by default).
             shaped = [
                 (centre, self._landmarks[j].ellipsoid, c)
                 for j, centre, c in zip(weighed, centres, classes, strict=True)
@@ -819,6 +832,7 @@ class RerunSink:
         for j, value in zip(result.landmark_ids, result.landmark_values, strict=True):
             covariance = self._backend.solver.marginal_covariance(L(j)) if fresh else None
             self._log_landmark(result.landmarks, j, _row(value), covariance)
+        self._log_uncertainty()
 
         indices = np.array(sorted(k for k in self._truth if k <= last), dtype=int)
         if len(indices):

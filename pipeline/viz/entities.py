@@ -27,7 +27,7 @@ HYPOTHESES = "/world/associations/hypotheses"
 # The landmarks they weighed: labelled (id, MAP class, its probability), with their ellipsoids
 CANDIDATES = "/world/associations/candidates"
 NULL_WINS = "/world/associations/null"  # detections the null hypothesis took this keyframe
-SWITCHES = "/world/associations/switches"  # records whose landmark changed this keyframe
+SWITCHES = "/world/associations/switches"  # earlier detections whose landmark changed now
 REJECTED = "/world/associations/rejected"  # at the end: every detection left to the null
 
 CAMERA = "/camera/left"

@@ -37,7 +37,9 @@ class KeyframeReport:
     pose_index: int
     records: list[AssociationRecord]
     candidates: list[Candidates]
-    switched: list[AssociationRecord]  # earlier associations this keyframe changed
+    # Associations this keyframe changed (once each): earlier detections', and its own where
+    # refine moved them off their first choice. One that left and came back is not in it.
+    switched: list[AssociationRecord]
     seconds: float
     merged: list[tuple[int, int]] = field(default_factory=list)  # (duplicate, survivor) ids
 
@@ -74,6 +76,9 @@ class Backend:
         self.num_poses = 0
         self.switches = 0
         self.step_seconds: list[float] = []
+        # (pose, detection) -> landmark as last reported: refine's rounds may switch a record
+        # away and back within one keyframe, which is no change.
+        self._reported: dict[tuple[int, int], int] = {}
 
     def _add_origin(self) -> gtsam.Pose3:
         p = self.config.prior
@@ -125,6 +130,8 @@ class Backend:
         for record in records:
             self.context.register(record)
         self.records.extend(records)
+        for r in records:
+            self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
         self.num_poses += 1
         marked = self.solver.update()
         switched: list[AssociationRecord] = []
@@ -133,13 +140,28 @@ class Backend:
         merged = self.merge(prediction.pose_index)
         if merged:
             switched += self.method.refine(self.context.after_update(self.solver.update()))
+        switched = self._changed(switched)
         for record in switched:
             self.context.seen(record)
         self.switches += len(switched)
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
-        unique = list({id(r): r for r in switched}.values())
-        return KeyframeReport(prediction.pose_index, records, candidates, unique, seconds, merged)
+        return KeyframeReport(prediction.pose_index, records, candidates, switched, seconds, merged)
+
+    def _changed(self, switched: list[AssociationRecord]) -> list[AssociationRecord]:
+        """The records among `switched` whose landmark now differs from the one last reported
+        (or the landmark that one was merged into), once each, in the order of their first
+        switch."""
+        changed = []
+        for r in {id(r): r for r in switched}.values():
+            key = (r.measurement.pose_index, r.measurement.detection_index)
+            before = self._reported[key]
+            if before >= 0:
+                before = self.landmarks.resolve(before)
+            if r.landmark_id != before:
+                self._reported[key] = r.landmark_id
+                changed.append(r)
+        return changed
 
     def merge(self, pose_index: int) -> list[tuple[int, int]]:
         """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""

@@ -19,6 +19,9 @@ class VizConfig:
     image_every: int
     jpeg_quality: int
     robot_axis_length_m: float
+    smoothing_window: int
+    warn_changes_at_once: int
+    warn_changes_per_detection: int
 
 
 @dataclass(frozen=True)
@@ -47,3 +50,6 @@ def _check(config: VizConfig, path: Path) -> None:
         raise InputError(f"config {path}: viz.jpeg_quality must be in 1..100")
     if config.robot_axis_length_m <= 0:
         raise InputError(f"config {path}: viz.robot_axis_length_m must be positive")
+    for key in ("smoothing_window", "warn_changes_at_once", "warn_changes_per_detection"):
+        if getattr(config, key) < 1:
+            raise InputError(f"config {path}: viz.{key} must be >= 1")

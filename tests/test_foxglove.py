@@ -17,9 +17,13 @@ from google.protobuf.unknown_fields import UnknownFieldSet
 from mcap.reader import make_reader
 
 from data_tools.scenarios import simulate
+from pipeline.config import load_config
 from pipeline.foxglove import log_topics
 from pipeline.foxglove import messages as fm
+from pipeline.foxglove import replay_file as rf
 from pipeline.log import Detection, read_log
+from pipeline.replay import replay
+from pipeline.viz import sink_from_options
 from tests.synthetic import kidnap_scene, write_scene
 
 CONTRACT_TOPICS = {
@@ -217,3 +221,50 @@ def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
         mcap_io.LogWriter.__init__ = original
     assert read_foxglove(bare) == {}
     assert contract_messages(plain) == contract_messages(bare)
+
+
+# --- the estimate: `replay --mcap FILE` -------------------------------------------------------
+
+
+def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
+    scene, _, _ = kidnap_scene(alias_seen_before=False)
+    log_path = write_scene(tmp_path / "alias.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    estimate = tmp_path / "estimate.mcap"
+    sink = sink_from_options(None, False, None, mcap=estimate)
+    result = replay(log_path, "mm-nh", tmp_path / "run", load_config(), sink=sink, progress=False)
+    fox = read_foxglove(estimate)
+    log = read_log(log_path)
+    stamps = log.pose_stamps_ns()
+
+    trajectory = np.loadtxt(tmp_path / "run" / "trajectory.tum")
+    poses = fox[rf.POSE]
+    assert [t for t, _ in poses] == stamps
+    for row, (_, message) in zip(trajectory, poses, strict=True):
+        np.testing.assert_allclose(xyz(message.pose.position), row[1:4], atol=1e-6)
+    landmarks = np.loadtxt(tmp_path / "run" / "landmarks.csv", delimiter=",", skiprows=1, ndmin=2)
+    drawn = {e.id: e for _, m in fox[rf.LANDMARKS] for e in m.entities}
+    assert set(drawn) == {f"landmark {int(i)}" for i in landmarks[:, 0]}
+    for row in landmarks:
+        entity = drawn[f"landmark {int(row[0])}"]
+        np.testing.assert_allclose(xyz(entity.spheres[0].pose.position), row[1:4], atol=1e-5)
+        assert entity.texts[0].text.startswith(f"L{int(row[0])} class{int(row[4])} ")
+
+    associations = np.loadtxt(
+        tmp_path / "run" / "associations.csv", delimiter=",", skiprows=1, ndmin=2
+    )
+    lines = [m.entities[0].lines for _, m in fox[rf.ASSOCIATIONS]]
+    segments = sum(len(line[0].points) // 2 for line in lines if line)
+    assert segments == len(associations)
+    red = fm.NULL_COLOUR
+    null_segments = sum(
+        1
+        for line in lines
+        if line
+        for colour in line[0].colors[::2]
+        if np.allclose([colour.r, colour.g, colour.b], red, atol=1e-6)
+    )
+    assert null_segments == int((associations[:, 2] == -1).sum()) == 1
+    events = [m.message for _, m in fox[rf.EVENTS]]
+    assert any("switched from landmark" in e and "to the null hypothesis" in e for e in events)
+    assert events[-1].startswith("mm-nh: translation error rmse")
+    assert result.metrics["association"]["null"] == 1

@@ -91,7 +91,7 @@ def tiny_sweep(tmp_path_factory):
 
 
 def test_tiny_sweep_end_to_end(tiny_sweep):
-    _, out, summary = tiny_sweep
+    config, out, summary = tiny_sweep
     assert (summary.total, summary.new, summary.kept, summary.failed) == (9, 9, 0, ())
     rows = read_results(out / "results.csv")
     assert {(r.cell, r.seed, r.method) for r in rows} == TINY_RUNS
@@ -130,7 +130,11 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
         out / "tables.md",
         out / "fig_noise.png",
         out / "fig_mis.png",
+        out / "run.json",
     )
+    record = json.loads((out / "run.json").read_text())
+    assert record["config"]["scenario"] == "indoor-tags" and record["config"]["seeds"] == [0]
+    assert record["inputs"][0]["path"] == str(config)
 
 
 def test_resumption_skips_finished_runs_and_gives_the_same_tables(

@@ -23,7 +23,7 @@ from pipeline.foxglove import messages as fm
 from pipeline.foxglove import replay_file as rf
 from pipeline.log import Detection, read_log
 from pipeline.replay import replay
-from pipeline.viz import sink_from_options
+from pipeline.viz import TeeSink, sink_from_options
 from tests.synthetic import kidnap_scene, write_scene
 
 CONTRACT_TOPICS = {
@@ -268,3 +268,15 @@ def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
     assert any("switched from landmark" in e and "to the null hypothesis" in e for e in events)
     assert events[-1].startswith("mm-nh: translation error rmse")
     assert result.metrics["association"]["null"] == 1
+
+
+def test_two_sinks_get_the_same_run(tmp_path):
+    """--mcap beside a Rerun option: the sinks are teed, each sees the whole run."""
+    scene, _, _ = kidnap_scene(alias_seen_before=True)
+    log_path = write_scene(tmp_path / "log.mcap", scene, seed=2)
+    first, second = tmp_path / "first.mcap", tmp_path / "second.mcap"
+    sink = TeeSink([rf.FoxgloveSink(first), rf.FoxgloveSink(second)])
+    replay(log_path, "mm", tmp_path / "run", load_config(), sink=sink, progress=False)
+    one, two = read_foxglove(first), read_foxglove(second)
+    assert one.keys() == two.keys() and len(one[rf.POSE]) == read_log(log_path).num_poses
+    assert all(a == b for topic in one for a, b in zip(one[topic], two[topic], strict=True))

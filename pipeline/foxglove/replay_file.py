@@ -26,6 +26,7 @@ import foxglove.messages as fg
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
+from pipeline.backend.hypotheses import NULL
 from pipeline.errors import InputError
 from pipeline.foxglove import messages as fm
 from pipeline.foxglove.channels import FoxgloveChannels
@@ -35,7 +36,6 @@ if TYPE_CHECKING:
     from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
     from pipeline.log.messages import DetectionLog
 
-NULL = -1  # the landmark id of the null hypothesis (pipeline/backend/hypotheses.py)
 ESTIMATE = "estimate"
 TF = "/foxglove/estimate/tf"
 POSE = "/foxglove/estimate/pose"

@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
+from data_tools.data import KITTI05_DIR
 from data_tools.scenarios.geometry import se3_exp
 from pipeline.datasets.kitti import (
     BODY_FROM_CAMERA,
@@ -29,11 +30,6 @@ from pipeline.datasets.kitti import (
 )
 from pipeline.datasets.stereo import read_grey
 from pipeline.errors import InputError
-
-KITTI_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti-odometry-05"
-needs_kitti = pytest.mark.skipif(
-    not (KITTI_DIR / "poses.txt").exists(), reason="../shared/data/kitti-odometry-05 is absent"
-)
 
 # calib.txt of KITTI odometry sequences 04-12, as KITTI ships it (P2, P3 and Tr left out).
 KITTI_CALIB_05 = """\
@@ -103,9 +99,8 @@ def test_pose_conversion_expresses_poses_in_the_first_body_frame():
         np.testing.assert_allclose(body_motion, b @ camera_motion @ np.linalg.inv(b), atol=1e-9)
 
 
-@needs_kitti
 def test_real_sequence_05_converts_to_a_level_body_path():
-    camera = read_poses(KITTI_DIR / "poses.txt")
+    camera = read_poses(KITTI05_DIR / "poses.txt")
     assert camera.shape == (2761, 4, 4)
     body = camera_poses_to_body(camera)
     np.testing.assert_allclose(body_poses_to_camera(body), camera, atol=1e-6)  # pose 0 ~ I
@@ -115,7 +110,7 @@ def test_real_sequence_05_converts_to_a_level_body_path():
     # It keeps near the ground plane of its start: height varies far less than the extent.
     extent = np.ptp(body[:, :2, 3], axis=0).max()
     assert np.ptp(body[:, 2, 3]) < 0.1 * extent
-    times = read_times(KITTI_DIR / "times.txt")
+    times = read_times(KITTI05_DIR / "times.txt")
     assert len(times) == 2761 and 9.0 < 1.0 / np.median(np.diff(times)) < 11.0
 
 

@@ -45,6 +45,7 @@ def simulate(
     num_classes: int | None = None,
     true_covariance: bool = False,
     config_path: Path | None = None,
+    foxglove: bool = True,
 ) -> SimulationSummary:
     """Write the log of `scenario` to `out` (atomically) and return what it holds.
 
@@ -52,7 +53,8 @@ def simulate(
     `odom_noise_scale` multiplies the paper's added odometry noise (default: the config's);
     `misclassification` is the detector's alpha (1 - alpha on the confusion matrix's diagonal);
     `num_classes` defaults to the config's; `true_covariance` writes the odometry covariance
-    of the noise actually drawn instead of the calibrated model's.
+    of the noise actually drawn instead of the calibrated model's; `foxglove` adds Foxglove's
+    well-known messages beside the contract's.
     """
     if scenario not in _MODULES:
         raise InputError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
@@ -82,5 +84,5 @@ def simulate(
     )
     run = module.simulate(config, options, config_path)
     out = Path(out)
-    write_log(out, run)
+    write_log(out, run, foxglove)
     return summarise(scenario, out, options, run)

@@ -94,6 +94,7 @@ def ensure_log(task: RunTask) -> None:
                 num_classes=task.num_classes,
                 true_covariance=task.true_covariance,
                 config_path=task.scenario_config,
+                foxglove=False,  # only replayed
             )
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import sys
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -46,6 +45,7 @@ from pipeline.log import (
     Odometry,
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
+from pipeline.progress import track
 
 if TYPE_CHECKING:
     from pipeline.viz.frontend import FrontendSink
@@ -101,12 +101,7 @@ def open_sequence(path: str | Path, prefer_colour: bool = False) -> Sequence:
 
 
 def _progress(items: Iterable[T], enabled: bool, description: str, total: int) -> Iterator[T]:
-    if enabled and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        yield from tqdm(items, desc=description, total=total, unit="frame")
-    else:
-        yield from items
+    return track(items, total, description, "frame", enabled=enabled)
 
 
 def stamps_ns(times: np.ndarray) -> list[int]:

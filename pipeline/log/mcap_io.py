@@ -1,6 +1,6 @@
 """Reading and writing contract-v1 detection logs (MCAP, JSON messages).
 
-The reader checks everything ../shared/CONTRACT.md lists and raises `LogError` naming the topic
+The reader checks everything docs/log-format.md lists and raises `LogError` naming the topic
 and the message position (0-based, within its topic) of the first problem. The writer writes to
 a temporary name and renames into place, so a failed run never leaves a half-written log.
 """
@@ -39,6 +39,7 @@ from pipeline.log.messages import (
 logger = logging.getLogger(__name__)
 
 ROW_SUM_TOLERANCE = 1e-6
+FOXGLOVE_TOPICS = "/foxglove/"
 
 _ENCODERS = {
     Odometry: (schemas.ODOMETRY, codec.encode_odometry),
@@ -61,9 +62,12 @@ def atomic_output(path: Path) -> tuple[int, Path]:
 
 
 class LogWriter:
-    """Writes a log; use as a context manager. Messages go in the order they are written."""
+    """Writes a log; use as a context manager. Messages go in the order they are written.
 
-    def __init__(self, path: str | os.PathLike, metadata: LogMetadata):
+    With `foxglove` (the default), Foxglove's well-known messages are written beside the
+    contract's topics (`pipeline/foxglove/log_topics.py`), so that the log shows in Foxglove."""
+
+    def __init__(self, path: str | os.PathLike, metadata: LogMetadata, foxglove: bool = True):
         self.path = Path(path)
         self.metadata = metadata
         fd, self._tmp = atomic_output(self.path)
@@ -72,6 +76,12 @@ class LogWriter:
         self._writer.start(profile="", library="mmslam")
         self._channels: dict[str, int] = {}
         self._writer.add_metadata(METADATA_NAME, metadata_record(metadata))
+        self._foxglove = None
+        if foxglove:
+            from pipeline.foxglove.channels import FoxgloveChannels
+            from pipeline.foxglove.log_topics import LogMirror
+
+            self._foxglove = LogMirror(FoxgloveChannels(self._writer), metadata)
 
     def _channel(self, topic: str) -> int:
         if topic not in self._channels:
@@ -98,8 +108,12 @@ class LogWriter:
             data=data,
             sequence=0,
         )
+        if self._foxglove is not None:
+            self._foxglove.write(msg)
 
     def close(self) -> None:
+        if self._foxglove is not None:
+            self._foxglove.finish()
         self._writer.finish()
         self._file.close()
         os.replace(self._tmp, self.path)
@@ -256,6 +270,8 @@ def scan_log(path: str | os.PathLike, keep_topics: frozenset[str] | None = None)
 
 def _check_channels(raw: RawLog) -> None:
     for topic, info in raw.topics.items():
+        if topic.startswith(FOXGLOVE_TOPICS):
+            continue  # the log as Foxglove shows it (pipeline/foxglove), beside the contract's
         if topic not in schemas.SCHEMAS:
             logger.info("%s: ignoring unknown topic %s", raw.path, topic)
             continue
@@ -278,7 +294,7 @@ def _check_channels(raw: RawLog) -> None:
 
 def read_log(path: str | os.PathLike, load_images: bool = False) -> DetectionLog:
     """Read and validate a whole log. Raises LogError on the first problem."""
-    raw = scan_log(path)
+    raw = scan_log(path, keep_topics=frozenset(schemas.SCHEMAS))  # the contract's topics
     return decode_log(raw, load_images=load_images)
 
 

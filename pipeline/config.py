@@ -24,6 +24,7 @@ class AssociationConfig:
     joint_confidence: float
     ambiguity_log_odds: float
     max_search_nodes: int
+    min_loop_pairs: int
     joint_marginals: bool
     min_weight: float
     search_sigmas: float
@@ -57,8 +58,10 @@ class MergeConfig:
     local_confidence: float
     search_sigmas: float
     min_class_agreement: float
-    margin_pairs: int
-    min_loop_pairs: int
+    prior_log_odds: float
+    loop_log_odds: float
+    local_log_odds: float
+    ambiguity_log_odds: float
     max_search_nodes: int
 
 
@@ -110,9 +113,10 @@ def _check(config: Config, path: Path) -> None:
             f"config {path}: association.joint_confidence and joint_candidate_confidence must "
             "be in (0, 1)"
         )
-    if a.ambiguity_log_odds < 0.0 or a.max_search_nodes < 1:
+    if a.ambiguity_log_odds < 0.0 or a.max_search_nodes < 1 or a.min_loop_pairs < 1:
         raise InputError(
-            f"config {path}: association.ambiguity_log_odds >= 0, max_search_nodes >= 1"
+            f"config {path}: association.ambiguity_log_odds >= 0, max_search_nodes >= 1, "
+            "min_loop_pairs >= 1"
         )
     if a.null_crossover_sq <= 0.0:
         raise InputError(f"config {path}: association.null_crossover_sq must be positive")
@@ -129,8 +133,8 @@ def _check(config: Config, path: Path) -> None:
         )
     if min(g.every_keyframes, g.recent_keyframes, g.max_search_nodes) < 1 or g.search_sigmas <= 0:
         raise InputError(f"config {path}: merges counts must be >= 1, search_sigmas positive")
-    if g.margin_pairs < 0 or g.min_loop_pairs < 1:
-        raise InputError(f"config {path}: merges.margin_pairs >= 0, min_loop_pairs >= 1")
+    if min(g.loop_log_odds, g.local_log_odds, g.ambiguity_log_odds) < 0:
+        raise InputError(f"config {path}: merges log odds must be >= 0")
     if config.mixture.selection not in MIXTURE_SELECTIONS:
         raise InputError(
             f"config {path}: mixture.selection must be one of {', '.join(MIXTURE_SELECTIONS)}"

@@ -51,27 +51,46 @@ class MeasurementSpace:
 
     A detection that is no landmark mapped yet (a new landmark, or clutter) could be anywhere
     the sensor sees: its density is uniform over that box. Each side is at least sqrt(12)
-    times the measurement's own sigma (a uniform spread with the same variance), so that a
-    component every detection shares (the elevation of a planar sensor) weighs the same under
+    times the smallest sigma seen on it (a uniform spread with the same variance), so that a
+    component every detection shares (the elevation of a planar sensor) weighs alike under
     both hypotheses."""
 
     def __init__(self) -> None:
         self.low: np.ndarray | None = None
         self.high: np.ndarray | None = None
+        self.floor: np.ndarray | None = None
 
-    def observe(self, vector: np.ndarray) -> None:
+    def observe(self, vector: np.ndarray, covariance: np.ndarray) -> None:
         vector = np.asarray(vector, dtype=float)
-        if self.low is None or self.high is None:
-            self.low, self.high = vector.copy(), vector.copy()
+        floor = math.sqrt(12.0) * np.sqrt(np.diag(covariance))
+        if self.low is None or self.high is None or self.floor is None:
+            self.low, self.high, self.floor = vector.copy(), vector.copy(), floor
             return
         np.minimum(self.low, vector, out=self.low)
         np.maximum(self.high, vector, out=self.high)
+        np.minimum(self.floor, floor, out=self.floor)
 
-    def log_volume(self, covariance: np.ndarray) -> float:
-        floor = math.sqrt(12.0) * np.sqrt(np.diag(covariance))
-        if self.low is None or self.high is None:
-            return float(np.sum(np.log(floor)))
-        return float(np.sum(np.log(np.maximum(self.high - self.low, floor))))
+    def box(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) corners, each side at least its floor."""
+        if self.low is None or self.high is None or self.floor is None:
+            raise ValueError("no detection observed yet")
+        middle = (self.low + self.high) / 2
+        half = np.maximum(self.high - self.low, self.floor) / 2
+        return middle - half, middle + half
+
+    def log_volume(self) -> float:
+        """log of the box's volume in measurement units."""
+        low, high = self.box()
+        return float(np.sum(np.log(high - low)))
+
+    def log_world_volume(self) -> float:
+        """log of the volume (m^3) the box of (bearing, elevation, range) sweeps in space:
+        the integral of r^2 cos(elevation) over it."""
+        (b0, e0, r0), (b1, e1, r1) = self.box()
+        r0 = max(r0, 0.0)
+        e0, e1 = max(e0, -math.pi / 2), min(e1, math.pi / 2)
+        volume = (r1**3 - r0**3) / 3.0 * min(b1 - b0, 2 * math.pi) * (math.sin(e1) - math.sin(e0))
+        return math.log(max(volume, 1e-12))
 
 
 def clutter_log_density(null_weight: float, report_likelihood: float, log_volume: float) -> float:

@@ -10,10 +10,13 @@ covariance of all the differences together.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
+from pipeline.backend.decisions import MeasurementSpace
 from pipeline.backend.joint_compatibility import PairSet, difference_covariance, pairs_to_merge
 from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.methods.base import BackendContext
@@ -57,10 +60,17 @@ def pair_groups(pairs: list[tuple[int, int]], loop: list[bool]) -> list[list[int
 
 
 class MergeFinder:
-    def __init__(self, context: BackendContext, config: MergeConfig, margin_m: float):
+    def __init__(
+        self,
+        context: BackendContext,
+        config: MergeConfig,
+        margin_m: float,
+        space: MeasurementSpace,
+    ):
         self.context = context
         self.config = config
         self.margin_m = margin_m  # allowance for the other landmark's spread in the search
+        self.space = space  # where detections fall: where a landmark of its own could be
 
     def sources(self, pose_index: int) -> list[int]:
         lms = self.context.landmarks.landmarks
@@ -151,6 +161,16 @@ class MergeFinder:
             C = difference_covariance(joint, [(x, y)], slots, DIM)
             return assoc.mahalanobis_squared(positions[x] - positions[y], C) <= gate
 
+        lms = context.landmarks.landmarks
+        log_volume = self.space.log_world_volume()
+        log_prior = np.array(
+            [
+                log_volume
+                + c.prior_log_odds
+                + math.log(class_agreement(lms[a].class_probabilities, lms[b].class_probabilities))
+                for a, b in pairs
+            ]
+        )
         merged = []
         for group in pair_groups(pairs, loop):
             chosen = [pairs[p] for p in group]
@@ -158,11 +178,15 @@ class MergeFinder:
                 pairs=chosen,
                 differences=np.array([differences[p] for p in group]),
                 covariance=difference_covariance(joint, chosen, slots, DIM),
-                loop=np.array([loop[p] for p in group]),
+                log_prior=log_prior[group],
                 alike=alike,
             )
-            confidence = c.confidence if pair_set.loop.any() else c.local_confidence
+            closes_loop = any(loop[p] for p in group)
             merged += pairs_to_merge(
-                pair_set, confidence, c.margin_pairs, c.min_loop_pairs, c.max_search_nodes
+                pair_set,
+                c.confidence if closes_loop else c.local_confidence,
+                c.loop_log_odds if closes_loop else c.local_log_odds,
+                c.ambiguity_log_odds,
+                c.max_search_nodes,
             )
         return merged

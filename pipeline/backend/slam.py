@@ -67,7 +67,12 @@ class Backend:
             self.solver, self.landmarks, confusion, config.association, self.method.wants_joint
         )
         self.merger = (
-            MergeFinder(self.context, config.merges, config.association.search_margin_m)
+            MergeFinder(
+                self.context,
+                config.merges,
+                config.association.search_margin_m,
+                self.method.space[LandmarkKind.POINT],
+            )
             if getattr(self.method, "merges_landmarks", False)
             else None
         )

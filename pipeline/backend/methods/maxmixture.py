@@ -109,7 +109,7 @@ class MaxMixture(MixtureMethod):
         starts a landmark of its own."""
         for m in measurements:
             if m.kind is LandmarkKind.POINT:
-                self.space[m.kind].observe(m.vector)
+                self.space[m.kind].observe(m.vector, m.covariance)
         joint = self.context.keyframe_covariance
         if not self.jointly or joint is None or not any(len(c) for c in candidates):
             return super().associate_keyframe(measurements, candidates)
@@ -142,7 +142,7 @@ class MaxMixture(MixtureMethod):
                 if k != NONE
                 and self.context.last_seen.get(int(candidates[i].landmark_ids[k]), -1) <= since
             ]
-            if not loops or len(loops) >= self.config.merges.min_loop_pairs:
+            if not loops or len(loops) >= a.min_loop_pairs:
                 break
             for i in loops:
                 kept[i] = kept[i][kept[i] != chosen[i]]
@@ -165,7 +165,7 @@ class MaxMixture(MixtureMethod):
         if m.kind is not LandmarkKind.POINT:
             return -self.null_nll(m)
         report = float(self.context.confusion[:, m.detection.class_id].mean())
-        volume = self.space[m.kind].log_volume(m.covariance)
+        volume = self.space[m.kind].log_volume()
         return clutter_log_density(self.null_weight, report, volume)
 
     def _options(

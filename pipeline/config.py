@@ -34,6 +34,7 @@ class AssociationConfig:
 @dataclass(frozen=True)
 class LandmarkConfig:
     use_relative_pose: bool
+    anchor_sigma_m: float
 
 
 @dataclass(frozen=True)
@@ -66,6 +67,18 @@ class MergeConfig:
 
 
 @dataclass(frozen=True)
+class NoiseConfig:
+    estimate: bool
+    odometry_scale: float
+    measurement_scale: tuple[float, float, float]
+    update_every: int
+    window: int
+    min_pairings: int
+    min_scale: float
+    max_scale: float
+
+
+@dataclass(frozen=True)
 class Isam2Config:
     relinearize_threshold: float
     relinearize_skip: int
@@ -85,6 +98,7 @@ class Config:
     gpda: GpdaConfig
     mixture: MixtureConfig
     merges: MergeConfig
+    noise: NoiseConfig
     isam2: Isam2Config
     prior: PriorConfig
 
@@ -135,6 +149,14 @@ def _check(config: Config, path: Path) -> None:
         raise InputError(f"config {path}: merges counts must be >= 1, search_sigmas positive")
     if min(g.loop_log_odds, g.local_log_odds, g.ambiguity_log_odds) < 0:
         raise InputError(f"config {path}: merges log odds must be >= 0")
+    n = config.noise
+    if not 0.0 < n.min_scale <= 1.0 <= n.max_scale:
+        raise InputError(f"config {path}: noise.min_scale in (0, 1], max_scale >= 1")
+    scales = (n.odometry_scale, *n.measurement_scale)
+    if not all(n.min_scale <= x <= n.max_scale for x in scales):
+        raise InputError(f"config {path}: noise scales must lie within min_scale..max_scale")
+    if min(n.update_every, n.window, n.min_pairings) < 1:
+        raise InputError(f"config {path}: noise counts must be >= 1")
     if config.mixture.selection not in MIXTURE_SELECTIONS:
         raise InputError(
             f"config {path}: mixture.selection must be one of {', '.join(MIXTURE_SELECTIONS)}"

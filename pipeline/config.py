@@ -81,6 +81,12 @@ class NoiseConfig:
 @dataclass(frozen=True)
 class Isam2Config:
     relinearize_threshold: float
+    per_type_thresholds: bool
+    pose_rotation_threshold_rad: float
+    pose_translation_threshold_m: float
+    landmark_threshold_m: float
+    partial_relinearization_check: bool
+    wildfire_threshold: float
     relinearize_skip: int
     factorization: str
 

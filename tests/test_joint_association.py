@@ -120,3 +120,12 @@ def test_subset_keeps_the_chosen_options_in_order():
     sub = det.subset(np.array([2, 0]))
     np.testing.assert_array_equal(sub.slots, [6, 4])
     np.testing.assert_array_equal(sub.residuals[:, 0], [3.0, 1.0])
+
+
+def test_of_two_estimates_of_one_landmark_the_established_one_takes_the_detection():
+    det = detection([[0.0, 0.02, 0.0], [0.0, -0.01, 0.0]], [0, 1])
+    det = DetectionOptions(**{**det.__dict__, "seniority": np.array([30.0, 2.0])})
+    p = problem([det], [1e-3] * 3 + [0.05, 0.5, 0.05], landmarks=2)
+    # the second fits a little better, but the first holds thirty detections already
+    assert score(p, [1]) > score(p, [0])
+    assert associate_keyframe(p, 3.0, 1000).assignment == [0]

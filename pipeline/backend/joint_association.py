@@ -44,6 +44,10 @@ class DetectionOptions:
     log_prior: np.ndarray  # (c,) log((1 - null_weight) P(report | landmark))
     covariance: np.ndarray  # (d, d): Gamma
     null_log_density: float  # log of the null component's density for this detection
+    # (c,) how established each candidate is (its detections so far): between two candidates
+    # the detection cannot tell apart, the established one takes it, so that a landmark mapped
+    # twice does not split its detections between the two.
+    seniority: np.ndarray | None = None
 
     @property
     def dim(self) -> int:
@@ -59,6 +63,7 @@ class DetectionOptions:
             self.log_prior[options],
             self.covariance,
             self.null_log_density,
+            None if self.seniority is None else self.seniority[options],
         )
 
 
@@ -214,6 +219,27 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
 
 
+def _to_the_established(problem: KeyframeProblem, assignment: list[int]) -> list[int]:
+    """Each pairing moved to the most established candidate its detection cannot tell apart
+    from the one chosen, where no other detection holds that landmark."""
+    out = list(assignment)
+    used = {problem.detections[i].slots[k] for i, k in enumerate(out) if k != NONE}
+    for i, k in enumerate(out):
+        det = problem.detections[i]
+        if k == NONE or det.seniority is None:
+            continue
+        for other in np.argsort(-det.seniority, kind="stable"):
+            other = int(other)
+            if det.seniority[other] <= det.seniority[k]:
+                break
+            if det.slots[other] not in used and indistinguishable(problem, i, k, other):
+                used.discard(det.slots[k])
+                used.add(det.slots[other])
+                out[i] = other
+                break
+    return out
+
+
 @dataclass(frozen=True)
 class KeyframeDecision:
     assignment: list[int]  # option index per detection, NONE: the null
@@ -230,6 +256,7 @@ def associate_keyframe(
     best, best_score = search.run()
     if best is None or search.exhausted:
         return KeyframeDecision([NONE] * n, [False] * n, False)
+    best = _to_the_established(problem, best)
     unique = [False] * n
     for i, k in enumerate(best):
         if k == NONE:

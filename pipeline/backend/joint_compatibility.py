@@ -222,8 +222,8 @@ def pairs_to_merge(
     Each pair kept must add `local_log_odds` to the score of the others. The best set's pairs
     that close no loop are kept if together they reach `local_log_odds`;
     those that close a loop only if they add `loop_log_odds` to what the others score (a
-    loop closure must stand on its own evidence, not borrow a sure duplicate's). A pair is
-    then dropped if a rival, the best set that pairs one of its landmarks with another
+    loop closure must stand on its own evidence, not borrow a sure duplicate's). A loop pair
+    is then dropped if a rival, the best set that pairs one of its landmarks with another
     landmark (one alike to the other of them does not count), comes within
     `ambiguity_log_odds` of the best set. An unfinished search decides nothing."""
     if not pair_set.pairs:
@@ -240,6 +240,11 @@ def pairs_to_merge(
         kept = list(best)
     uncontested = []
     for p in kept:
+        if not pair_set.loop[p]:
+            # Rivals matter where a wrong merge closes a false loop; a landmark seen lately
+            # mapped several times (a track split in two or three) is merged piece by piece.
+            uncontested.append(p)
+            continue
         a, b = pair_set.pairs[p]
         rivals = [
             q

@@ -7,6 +7,8 @@ in one call and compared, vectorised, with the values kept from the last time th
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 _INDEX_MASK = (1 << 56) - 1
@@ -29,9 +31,31 @@ def key_index(key: int) -> int:
     return int(key) & _INDEX_MASK
 
 
+@dataclass(frozen=True)
+class MovementThresholds:
+    """How far a variable must move to count as moved: a pose's rotation (rad; rotation-matrix
+    entries change by about the angle) and translation (m), a landmark's position (m)."""
+
+    pose_rotation: float
+    pose_translation: float
+    landmark: float
+
+    @staticmethod
+    def uniform(threshold: float) -> MovementThresholds:
+        return MovementThresholds(threshold, threshold, threshold)
+
+    def row_thresholds(self, is_robot: np.ndarray) -> np.ndarray:
+        """(n, 12) per-entry thresholds for rows [R (9), t (3)] of poses (`is_robot`) and of
+        landmarks (a pose landmark's rotation takes the pose rotation threshold)."""
+        rows = np.empty((len(is_robot), 12))
+        rows[:, :9] = self.pose_rotation
+        rows[:, 9:] = np.where(is_robot, self.pose_translation, self.landmark)[:, None]
+        return rows
+
+
 class MovementTracker:
-    def __init__(self, threshold: float):
-        self.threshold = threshold
+    def __init__(self, thresholds: MovementThresholds):
+        self.thresholds = thresholds
         # Rows: [R (9, row-major), t (3)] per pose index / landmark id; NaN = never seen.
         self._poses = np.full((0, 12), np.nan)
         self._landmarks = np.full((0, 12), np.nan)
@@ -63,8 +87,9 @@ class MovementTracker:
         last = np.full_like(current, np.nan)
         last[is_robot] = self._poses[index[is_robot]]
         last[~is_robot] = self._landmarks[index[~is_robot]]
+        limits = self.thresholds.row_thresholds(is_robot)
         with np.errstate(invalid="ignore"):
-            stayed = np.max(np.abs(current - last), axis=1) <= self.threshold  # NaN: new
+            stayed = np.all(np.abs(current - last) <= limits, axis=1)  # NaN: new
         moved = ~stayed
         self._poses[index[moved & is_robot]] = current[moved & is_robot]
         self._landmarks[index[moved & ~is_robot]] = current[moved & ~is_robot]

@@ -64,7 +64,7 @@ class BackendResult:
 class Backend:
     def __init__(self, config: Config, confusion: np.ndarray, method: str):
         self.config = config
-        self.solver = Isam2Solver(config.isam2)
+        self.solver = Isam2Solver(config.isam2, config.landmarks.use_relative_pose)
         self.landmarks = LandmarkMap(num_classes=confusion.shape[0], cell_size=INDEX_CELL_SIZE_M)
         self.context = BackendContext(self.solver, self.landmarks, confusion, config)
         self.method = make_method(method, self.context)

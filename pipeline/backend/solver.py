@@ -15,6 +15,7 @@ import logging
 import gtsam
 import numpy as np
 
+from pipeline.backend.movement import MovementThresholds
 from pipeline.config import Isam2Config
 from pipeline.errors import SolverError
 
@@ -32,6 +33,33 @@ def gtsam_reason(message: str) -> str:
     return " ".join(head) or "unknown error"
 
 
+def relinearization_thresholds(
+    config: Isam2Config, pose_landmarks: bool = False
+) -> float | gtsam.ISAM2ThresholdMap:
+    """GTSAM's relinearisation threshold: one scalar, or per variable type (poses 'x': rotation
+    then translation, in Pose3's tangent order; point landmarks 'l'). GTSAM keys the map by
+    symbol letter, so landmarks of two dimensions (points and poses, `pose_landmarks`) take
+    the scalar."""
+    if not config.per_type_thresholds or pose_landmarks:
+        return config.relinearize_threshold
+    thresholds = gtsam.ISAM2ThresholdMap()
+    rotation, translation = config.pose_rotation_threshold_rad, config.pose_translation_threshold_m
+    thresholds.insert(("x", np.array([rotation] * 3 + [translation] * 3)))
+    thresholds.insert(("l", np.full(3, config.landmark_threshold_m)))
+    return thresholds
+
+
+def movement_thresholds(config: Isam2Config) -> MovementThresholds:
+    """The same thresholds for telling which variables moved after an update."""
+    if not config.per_type_thresholds:
+        return MovementThresholds.uniform(config.relinearize_threshold)
+    return MovementThresholds(
+        config.pose_rotation_threshold_rad,
+        config.pose_translation_threshold_m,
+        config.landmark_threshold_m,
+    )
+
+
 class Isam2Solver:
     """Collects factors and values, then applies them in one iSAM2 update.
 
@@ -39,8 +67,9 @@ class Isam2Solver:
     after the update that inserts it; `remove` takes a handle of an already committed factor.
     """
 
-    def __init__(self, config: Isam2Config):
+    def __init__(self, config: Isam2Config, pose_landmarks: bool = False):
         self.config = config
+        self.pose_landmarks = pose_landmarks
         self.factorization = config.factorization
         self.isam = gtsam.ISAM2(self._params(self.factorization))
         self._committed: dict[int, gtsam.NonlinearFactor] = {}  # handle -> factor in iSAM2
@@ -52,9 +81,14 @@ class Isam2Solver:
         self.num_updates = 0
 
     def _params(self, factorization: str) -> gtsam.ISAM2Params:
+        c = self.config
         params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.config.relinearize_threshold)
-        params.relinearizeSkip = self.config.relinearize_skip
+        params.setRelinearizeThreshold(relinearization_thresholds(c, self.pose_landmarks))
+        params.relinearizeSkip = c.relinearize_skip
+        params.enablePartialRelinearizationCheck = c.partial_relinearization_check
+        optimisation = gtsam.ISAM2GaussNewtonParams()
+        optimisation.setWildfireThreshold(c.wildfire_threshold)
+        params.setOptimizationParams(optimisation)
         params.setFactorization(factorization)
         return params
 

@@ -17,7 +17,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.movement import MovementTracker, is_landmark_key, key_index
 from pipeline.backend.noise import ScaleEstimator
-from pipeline.backend.solver import Isam2Solver
+from pipeline.backend.solver import Isam2Solver, movement_thresholds
 from pipeline.config import Config
 
 
@@ -41,7 +41,7 @@ class BackendContext:
     innovations: ScaleEstimator = field(init=False)
 
     def __post_init__(self) -> None:
-        self.movement = MovementTracker(self.config.isam2.relinearize_threshold)
+        self.movement = MovementTracker(movement_thresholds(self.config.isam2))
         n = self.config.noise
         self.innovations = ScaleEstimator(3, n.window, n.min_pairings, (n.min_scale, n.max_scale))
 

@@ -189,6 +189,9 @@ class MaxMixture(MixtureMethod):
             log_prior=np.log((1.0 - self.null_weight) * c.semantic),
             covariance=m.covariance,
             null_log_density=self._null_log_density(m),
+            seniority=np.array(
+                [len(self.context.records_of.get(int(j), ())) for j in c.landmark_ids], float
+            ),
         )
 
     def _custom_factor(self, record: AssociationRecord) -> AssociationRecord:

@@ -72,6 +72,7 @@ class NoiseConfig:
     odometry_scale: float
     measurement_scale: tuple[float, float, float]
     update_every: int
+    sample_every: int
     window: int
     min_pairings: int
     min_scale: float
@@ -161,7 +162,7 @@ def _check(config: Config, path: Path) -> None:
     scales = (n.odometry_scale, *n.measurement_scale)
     if not all(n.min_scale <= x <= n.max_scale for x in scales):
         raise InputError(f"config {path}: noise scales must lie within min_scale..max_scale")
-    if min(n.update_every, n.window, n.min_pairings) < 1:
+    if min(n.update_every, n.sample_every, n.window, n.min_pairings) < 1:
         raise InputError(f"config {path}: noise counts must be >= 1")
     if config.mixture.selection not in MIXTURE_SELECTIONS:
         raise InputError(

@@ -13,7 +13,7 @@ def test_equations_of_a_consistent_innovation_in_its_own_whitened_frame():
     P = np.diag([0.5, 0.25, 0.0])
     gamma = np.diag([0.5, 0.75, 1.0])
     nu = np.array([1.0, 2.0, 0.0])
-    A, y = scale_equations(nu, P, gamma)
+    A, y = scale_equations(nu[None], P[None], gamma[None])
     # upper triangle order: (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)
     np.testing.assert_allclose(y, [1.0, 2.0, 0.0, 4.0, 0.0, 0.0])
     np.testing.assert_allclose(A[:, 0], [0.5, 0.0, 0.0, 0.25, 0.0, 0.0])
@@ -65,3 +65,18 @@ def test_updated_scales_multiply_and_stay_bounded():
     assert new == NoiseScales(10.0, (0.5, 2.0, 1.0))
     D = new.measurement_matrix()
     np.testing.assert_allclose(D @ np.eye(3) @ D, np.diag([0.5, 2.0, 1.0]))
+
+
+def test_batched_equations_match_one_by_one():
+    nus, Ps, gammas = [], [], []
+    for _ in range(4):
+        G = RNG.normal(size=(3, 3)) * 0.1
+        nus.append(RNG.normal(size=3) * 0.1)
+        Ps.append(G @ G.T)
+        C = RNG.normal(size=(3, 3)) * 0.01
+        gammas.append(C @ C.T + np.eye(3) * 1e-3)
+    A, y = scale_equations(np.array(nus), np.array(Ps), np.array(gammas))
+    for k in range(4):
+        a1, y1 = scale_equations(nus[k][None], Ps[k][None], gammas[k][None])
+        np.testing.assert_allclose(A[6 * k : 6 * k + 6], a1, atol=1e-12)
+        np.testing.assert_allclose(y[6 * k : 6 * k + 6], y1, atol=1e-12)

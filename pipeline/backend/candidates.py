@@ -9,6 +9,7 @@ odometry, which is exact to first order: x_t = x_{t-1} * u gives dx_t = Ad(u^-1)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -98,6 +99,16 @@ class _Screened:
     sure: Candidates | None = None  # decided without joint marginals
 
 
+def _all_sure(screened: list[_Screened], is_recent: Callable[[int], bool] | None) -> bool:
+    """Every detection sure (or with nothing near), no landmark twice, every one seen lately."""
+    if any(s.sure is None for s in screened):
+        return False
+    ids = [int(j) for s in screened for j in s.ids]
+    if len(ids) != len(set(ids)):
+        return False
+    return is_recent is None or all(is_recent(j) for j in ids)
+
+
 def search_radius(
     prediction: PosePrediction,
     pose_covariance: np.ndarray,
@@ -143,13 +154,21 @@ class CandidateScorer:
         self.last_joint: KeyframeCovariance | None = None
 
     def score(
-        self, prediction: PosePrediction, measurements: list[Measurement]
+        self,
+        prediction: PosePrediction,
+        measurements: list[Measurement],
+        is_recent: Callable[[int], bool] | None = None,
+        full: bool = False,
     ) -> list[Candidates]:
         """Candidates of every detection of one keyframe.
 
         Cheap bounds first screen each detection's nearby landmarks; the joint marginals of the
         anchor pose and every landmark still in play, for all the keyframe's detections at
-        once, come from one iSAM2 query (one walk of the Bayes tree instead of one a pair)."""
+        once, come from one iSAM2 query (one walk of the Bayes tree instead of one a pair).
+
+        Keeping the joint (`keep_joint`), a keyframe whose every detection is sure (a lone
+        candidate that fits even without the pose's and landmark's uncertainty, each its own,
+        each seen lately: `is_recent`) needs no joint test, and gets none unless `full`."""
         self.last_joint = None
         if not measurements or len(self.landmarks) == 0:
             return [Candidates.none() for _ in measurements]
@@ -166,10 +185,19 @@ class CandidateScorer:
             self._screen(prediction, pose_cov, m, ids, estimates)
             for m, ids in zip(measurements, nearby, strict=True)
         ]
-        wanted = sorted({int(j) for s in screened if s.sure is None for j in s.ids})
+        if not self.keep_joint:
+            wanted = sorted({int(j) for s in screened if s.sure is None for j in s.ids})
+            joints = self._joints(prediction, wanted)
+            return [
+                s.sure if s.sure is not None else self._finish(m, s, joints)
+                for m, s in zip(measurements, screened, strict=True)
+            ]
+        if not full and _all_sure(screened, is_recent):
+            return [s.sure for s in screened]  # type: ignore[misc]
+        wanted = sorted({int(j) for s in screened for j in s.ids})
         joints = self._joints(prediction, wanted)
         return [
-            s.sure if s.sure is not None else self._finish(m, s, joints)
+            self._finish(m, s, joints) if len(s.ids) else Candidates.none(s.searched)
             for m, s in zip(measurements, screened, strict=True)
         ]
 
@@ -268,9 +296,9 @@ class CandidateScorer:
         )
         if len(plausible) == 0:
             out.sure = Candidates.none(searched)
-        elif len(plausible) == 1 and not self.keep_joint:
+        elif len(plausible) == 1:
             fit = assoc.mahalanobis_squared(out.residual[0], m.covariance)
-            if fit <= gate:
+            if fit <= assoc.chi2_gate(m.dim, self.config.chi2_confidence):
                 # Passes even under the smaller R and has no rival: weight 1, whatever R is.
                 out.sure = Candidates(
                     out.ids, np.ones(1), out.semantic, np.full(1, np.nan), searched, np.array([fit])

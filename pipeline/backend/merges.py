@@ -73,12 +73,17 @@ class MergeFinder:
         self.space = space  # where detections fall: where a landmark of its own could be
 
     def sources(self, pose_index: int) -> list[int]:
+        """Point landmarks seen lately that were seen or moved since the last check (for the
+        others nothing changed), taken out of the context's `changed` set."""
         lms = self.context.landmarks.landmarks
         since = pose_index - self.config.recent_keyframes
+        changed, self.context.changed = self.context.changed, set()
         return sorted(
             j
-            for j, seen in self.context.last_seen.items()
-            if seen > since and j in lms and lms[j].kind is LandmarkKind.POINT
+            for j in changed
+            if self.context.last_seen.get(j, -1) > since
+            and j in lms
+            and lms[j].kind is LandmarkKind.POINT
         )
 
     def candidate_pairs(self, pose_index: int) -> list[tuple[int, int]]:

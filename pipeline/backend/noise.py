@@ -34,23 +34,26 @@ class NoiseScales:
 
 
 def scale_equations(
-    residual: np.ndarray, prior_part: np.ndarray, gamma: np.ndarray
+    residuals: np.ndarray, prior_parts: np.ndarray, gammas: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The pairing's equations (A, y): y = A [a, b_1 .. b_d], whitened by S = P + Gamma, from
-    the upper triangle of W nu nu^T W^T = a W P W^T + sum_k b_k Gamma_kk W e_k e_k^T W^T
-    + W Gamma_off W^T (Gamma's correlations are taken as stated)."""
-    d = len(residual)
-    S = prior_part + gamma
-    W = np.linalg.inv(np.linalg.cholesky(0.5 * (S + S.T)))
+    """The equations (A, y) of n pairings, y = A [a, b_1 .. b_d], whitened by S = P + Gamma,
+    from the upper triangle of W nu nu^T W^T = a W P W^T + sum_k b_k Gamma_kk W e_k e_k^T W^T
+    + W Gamma_off W^T (Gamma's correlations are taken as stated). Inputs (n, d), (n, d, d),
+    (n, d, d); outputs (n m, 1 + d) and (n m,), m = d (d + 1) / 2 equations a pairing."""
+    d = residuals.shape[1]
+    S = prior_parts + gammas
+    W = np.linalg.inv(np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2))))
+    Wt = np.swapaxes(W, 1, 2)
     rows, cols = np.triu_indices(d)
-    w = W @ residual
-    off = gamma - np.diag(np.diag(gamma))
-    y = (np.outer(w, w) - W @ off @ W.T)[rows, cols]
-    columns = [(W @ prior_part @ W.T)[rows, cols]]
+    w = np.einsum("nij,nj->ni", W, residuals)
+    diagonal = np.einsum("nii->ni", gammas)
+    off = gammas - np.einsum("ni,ij->nij", diagonal, np.eye(d))
+    y = (np.einsum("ni,nj->nij", w, w) - W @ off @ Wt)[:, rows, cols]
+    columns = [(W @ prior_parts @ Wt)[:, rows, cols]]
     for k in range(d):
-        column = W[:, k] * np.sqrt(gamma[k, k])
-        columns.append(np.outer(column, column)[rows, cols])
-    return np.column_stack(columns), y
+        column = W[:, :, k] * np.sqrt(diagonal[:, k])[:, None]
+        columns.append(np.einsum("ni,nj->nij", column, column)[:, rows, cols])
+    return np.stack(columns, axis=-1).reshape(-1, 1 + d), y.reshape(-1)
 
 
 class ScaleEstimator:
@@ -61,30 +64,29 @@ class ScaleEstimator:
         self.dim = dim
         self.min_pairings = min_pairings
         self.bounds = bounds
-        self._equations: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=window)
+        self._pairings: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=window)
 
     def __len__(self) -> int:
-        return len(self._equations)
+        return len(self._pairings)
 
     def add(self, residual: np.ndarray, prior_part: np.ndarray, gamma: np.ndarray) -> None:
-        self._equations.append(scale_equations(residual, prior_part, gamma))
+        self._pairings.append((residual, prior_part, gamma))
 
     def corrections(self) -> np.ndarray | None:
         """Factors [a, b_1 .. b_d] by which the current scales are off, or None while there
         are too few pairings."""
-        if len(self._equations) < self.min_pairings:
+        if len(self._pairings) < self.min_pairings:
             return None
-        A = np.concatenate([a for a, _ in self._equations])
-        y = np.concatenate([b for _, b in self._equations])
+        A, y = scale_equations(*(np.stack(part) for part in zip(*self._pairings, strict=True)))
         # A weak prior at 1 keeps a scale the pairings hardly see (no drift yet: no a) put.
-        prior = 1e-4 * len(self._equations)
+        prior = 1e-4 * len(self._pairings)
         n = A.shape[1]
         solution = np.linalg.solve(A.T @ A + prior * np.eye(n), A.T @ y + prior * np.ones(n))
         return np.clip(solution, *self.bounds)
 
     def clear(self) -> None:
         """Forget the pairings: they were whitened with the scales now replaced."""
-        self._equations.clear()
+        self._pairings.clear()
 
 
 def updated(

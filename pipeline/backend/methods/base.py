@@ -37,6 +37,9 @@ class BackendContext:
         init=False, default_factory=lambda: defaultdict(list)
     )
     last_seen: dict[int, int] = field(init=False, default_factory=dict)  # latest pose index
+    # Landmarks seen or moved since the last merge check: the only ones whose merge test can
+    # have changed.
+    changed: set[int] = field(init=False, default_factory=set)
     # Sure pairings' innovations, for the noise scales (`noise.py`): point detections only.
     innovations: ScaleEstimator = field(init=False)
 
@@ -55,6 +58,7 @@ class BackendContext:
         j, pose = record.landmark_id, record.measurement.pose_index
         if j >= 0:
             self.last_seen[j] = max(self.last_seen.get(j, pose), pose)
+            self.changed.add(j)
 
     def observed_at(self, landmark_id: int) -> set[int]:
         """Pose indices of the detections now associated with the landmark."""
@@ -132,6 +136,7 @@ class BackendContext:
         moved, positions = self.movement.moved(self.solver, marked, self.landmarks.is_pose)
         for landmark_id, position in positions.items():
             self.landmarks.move(landmark_id, position)
+        self.changed.update(positions)
         return moved
 
 

@@ -112,6 +112,7 @@ class MaxMixture(MixtureMethod):
                 self.space[m.kind].observe(m.vector, m.covariance)
         joint = self.context.keyframe_covariance
         if not self.jointly or joint is None or not any(len(c) for c in candidates):
+            # Without a joint (every detection sure, or none near anything), one at a time.
             return super().associate_keyframe(measurements, candidates)
         a = self.config.association
         options = [

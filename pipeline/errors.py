@@ -14,6 +14,7 @@ class LogError(InputError):
         if topic is not None and index is None:
             where = f"{topic}: "
         super().__init__(f"bad log {path}: {where}{reason}")
+        self.detail = where + reason  # what is wrong and where, without the file
         self.path = path
         self.topic = topic
         self.index = index

@@ -18,7 +18,6 @@ from typing import Any
 
 from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json
 from data_tools.sweep.executors import default_workers, execute
-from data_tools.sweep.files import write_text
 from data_tools.sweep.grid import RUNS_DIR, RunKey, log_path, run_dir, runs
 from data_tools.sweep.reporting import DESCRIPTION_NAME, read_description, write_report
 from data_tools.sweep.results import RESULTS_NAME, row_from_metrics, write_results
@@ -29,7 +28,7 @@ from data_tools.sweep.work import (
     finished_metrics,
 )
 from pipeline.errors import InputError
-from pipeline.outputs import METRICS, metrics_json, write_outputs
+from pipeline.outputs import METRICS, metrics_json, write_outputs, write_text
 
 logger = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from pipeline.errors import InputError, SolverError
+from pipeline.errors import InputError, SolverError, describe_os_error
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
 
@@ -212,6 +212,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `mmslam inspect LOG | head`: the reader has gone, nothing to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # a path the system refuses, a full disk
+        message, status = describe_os_error(exc)
+        print(f"mmslam {args.command}: error: {message}", file=sys.stderr)
+        return status
 
 
 if __name__ == "__main__":

@@ -1,4 +1,7 @@
-"""Typed configuration: defaults in configs/default.toml, overridden by a user's TOML file."""
+"""Typed configuration: defaults in configs/default.toml, overridden by a user's TOML file.
+
+Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load.
+"""
 
 from __future__ import annotations
 
@@ -6,20 +9,20 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline import settings
-from pipeline.errors import InputError
+from pipeline.settings import POSITIVE, PROBABILITY, at_least, between, one_of, setting
 
 MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
 
 
 @dataclass(frozen=True)
 class AssociationConfig:
-    chi2_confidence: float
-    null_weight: float
-    null_sigma: float
+    chi2_confidence: float = setting(PROBABILITY)
+    null_weight: float = setting(PROBABILITY)
+    null_sigma: float = setting(POSITIVE)
     joint_marginals: bool
-    min_weight: float
-    search_sigmas: float
-    search_margin_m: float
+    min_weight: float = setting(between(0.0, 1.0, high_open=True))
+    search_sigmas: float = setting(at_least(0.0))
+    search_margin_m: float = setting(at_least(0.0))
 
 
 @dataclass(frozen=True)
@@ -29,27 +32,27 @@ class LandmarkConfig:
 
 @dataclass(frozen=True)
 class GpdaConfig:
-    max_iterations: int
-    weight_tolerance: float
+    max_iterations: int = setting(at_least(1))
+    weight_tolerance: float = setting(between(0.0, 1.0))
 
 
 @dataclass(frozen=True)
 class MixtureConfig:
-    selection: str
-    max_switch_rounds: int
+    selection: str = setting(one_of(*MIXTURE_SELECTIONS))
+    max_switch_rounds: int = setting(at_least(1))
 
 
 @dataclass(frozen=True)
 class Isam2Config:
-    relinearize_threshold: float
-    relinearize_skip: int
-    factorization: str
+    relinearize_threshold: float = setting(at_least(0.0))
+    relinearize_skip: int = setting(at_least(1))
+    factorization: str = setting(one_of("CHOLESKY", "QR"))
 
 
 @dataclass(frozen=True)
 class PriorConfig:
-    pose0_sigma_rotation: float
-    pose0_sigma_translation: float
+    pose0_sigma_rotation: float = setting(POSITIVE)
+    pose0_sigma_translation: float = setting(POSITIVE)
 
 
 @dataclass(frozen=True)
@@ -64,24 +67,4 @@ class Config:
 
 def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
-    config = settings.load(Config, settings.config_path("default.toml"), path)
-    _check(config, Path(path) if path is not None else settings.config_path("default.toml"))
-    return config
-
-
-def _check(config: Config, path: Path) -> None:
-    a = config.association
-    if not 0.0 < a.chi2_confidence < 1.0:
-        raise InputError(f"config {path}: association.chi2_confidence must be in (0, 1)")
-    if not 0.0 < a.null_weight < 1.0:
-        raise InputError(f"config {path}: association.null_weight must be in (0, 1)")
-    if a.null_sigma <= 0.0:
-        raise InputError(f"config {path}: association.null_sigma must be positive")
-    if config.mixture.selection not in MIXTURE_SELECTIONS:
-        raise InputError(
-            f"config {path}: mixture.selection must be one of {', '.join(MIXTURE_SELECTIONS)}"
-        )
-    if config.isam2.factorization not in ("CHOLESKY", "QR"):
-        raise InputError(f"config {path}: isam2.factorization must be CHOLESKY or QR")
-    if config.gpda.max_iterations < 1 or config.mixture.max_switch_rounds < 1:
-        raise InputError(f"config {path}: iteration counts must be >= 1")
+    return settings.load(Config, settings.config_path("default.toml"), path)

@@ -139,6 +139,13 @@ def clean_leftovers(target: Path) -> None:
             os.close(fd)
 
 
+def _cannot_write(path: Path, exc: OSError) -> InputError:
+    detail = exc.strerror or type(exc).__name__
+    if exc.filename is not None and Path(exc.filename) != path:
+        detail += f": {exc.filename}"
+    return InputError(f"{path}: cannot write there ({detail})")
+
+
 def _temporary_file(path: Path) -> tuple[int, Path]:
     """A new locked file beside `path` (fd, its path), after removing dead writers' ones."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -161,7 +168,10 @@ class AtomicFile:
 
     def __init__(self, path: str | os.PathLike, mode: str = "wb", **open_args: Any):
         self.path = Path(path)
-        fd, self.temporary = _temporary_file(self.path)
+        try:
+            fd, self.temporary = _temporary_file(self.path)
+        except OSError as exc:
+            raise _cannot_write(self.path, exc) from None
         self.file: IO = os.fdopen(fd, mode, **open_args)
 
     def commit(self) -> None:
@@ -278,7 +288,7 @@ class OutputFolder:
                 tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=STAGING, dir=self.path.parent)
             )
         except OSError as exc:
-            raise InputError(f"{path}: cannot write there ({exc.strerror})") from None
+            raise _cannot_write(self.given, exc) from None
         self._lock: int | None = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
         fcntl.flock(self._lock, fcntl.LOCK_EX)
 

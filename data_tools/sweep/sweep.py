@@ -9,11 +9,16 @@ folder's error.txt and left unfinished, so the next sweep into the same folder t
 from __future__ import annotations
 
 import logging
+import signal
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json
@@ -159,6 +164,24 @@ class _Progress:
             self.bar.close()
 
 
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a scheduler or `kill` stopping the sweep) does what Ctrl-C does: the runs in
+    progress end, the finished ones are kept, and the sweep says it was interrupted."""
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():  # signals reach main only
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def finished_runs(out: Path, keys: list[RunKey]) -> dict[RunKey, dict[str, Any]]:
     """The metrics of the runs among `keys` already finished in `out`."""
     found = {key: finished_metrics(run_dir(out, key), key.method) for key in keys}
@@ -223,14 +246,15 @@ def run_sweep(
     if tasks:
         code_versions = note_code_version(out, config, code_versions)
     logger.info("sweep %s: %d runs, %d finished before", config.name, len(keys), kept)
-    failed = run_pending(
-        out,
-        tasks,
-        metrics,
-        workers=workers or default_workers(),
-        dask_address=dask_address,
-        progress=progress,
-    )
+    with terminate_as_interrupt():
+        failed = run_pending(
+            out,
+            tasks,
+            metrics,
+            workers=workers or default_workers(),
+            dask_address=dask_address,
+            progress=progress,
+        )
 
     rows = [row_from_metrics(key, metrics[key]) for key in keys if key in metrics]
     write_results(out / RESULTS_NAME, rows)

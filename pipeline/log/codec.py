@@ -161,12 +161,19 @@ def covariance_problem(values: tuple[float, ...], dim: int) -> str | None:
     return None
 
 
+@functools.lru_cache(maxsize=4096)
+def _shared(values: tuple[float, ...]) -> tuple[float, ...]:
+    """The first of equal tuples met lately: a log of 50,000 poses with one calibrated
+    covariance holds one copy of it, not 50,000."""
+    return values
+
+
 def _covariance(obj: dict, name: str, dim: int, where: str = "") -> tuple[float, ...]:
     values = _numbers(obj, name, dim * dim, where)
     problem = covariance_problem(values, dim)
     if problem is not None:
         raise ValueError(f"'{where}{name}' {problem}")
-    return values
+    return _shared(values)
 
 
 def _stamp(obj: dict) -> int:

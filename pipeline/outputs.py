@@ -146,20 +146,16 @@ def _cannot_write(path: Path, exc: OSError) -> InputError:
     return InputError(f"{path}: cannot write there ({detail})")
 
 
-def _temporary_file(path: Path) -> tuple[int, Path]:
-    """A new locked file beside `path` (fd, its path), after removing dead writers' ones."""
+def atomic_output(path: Path) -> tuple[int, Path]:
+    """A new temporary file beside `path` (fd, its path), locked while the fd is open, to be
+    renamed onto `path` once complete; first, dead writers' temporaries are removed."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_leftovers(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=PART, dir=path.parent)
-    fcntl.flock(fd, fcntl.LOCK_EX)  # held while the fd is open
+    fcntl.flock(fd, fcntl.LOCK_EX)
     os.fchmod(fd, _default_mode(0o666))  # mkstemp makes 0600; the result is like any new file
     return fd, Path(tmp)
-
-
-def atomic_output(path: Path) -> tuple[int, Path]:
-    """A temporary file beside `path` (fd, its path), to be renamed onto `path` once complete
-    (for writers that need a path of their own, such as Rerun's)."""
-    return _temporary_file(Path(path))
 
 
 class AtomicFile:
@@ -169,7 +165,7 @@ class AtomicFile:
     def __init__(self, path: str | os.PathLike, mode: str = "wb", **open_args: Any):
         self.path = Path(path)
         try:
-            fd, self.temporary = _temporary_file(self.path)
+            fd, self.temporary = atomic_output(self.path)
         except OSError as exc:
             raise _cannot_write(self.path, exc) from None
         self.file: IO = os.fdopen(fd, mode, **open_args)

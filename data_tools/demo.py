@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     print(
         f"\nDone. Outputs in {out / args.method}/ (trajectory.tum, landmarks.csv, "
         f"associations.csv, metrics.json).\nOpen the recording with: .venv/bin/rerun {recording}"
-        f"\nCompare the indoor runs: python -m data_tools.plot_runs {tags} "
+        f"\nCompare the indoor runs: mmslam plot {tags} "
         f"{out / 'indoor-ml'} {out / 'indoor-mm-nh'} --out {out / 'indoor.png'}"
     )
     return 0

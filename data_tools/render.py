@@ -30,6 +30,7 @@ from pipeline.datasets.kitti import (
     write_times,
 )
 from pipeline.errors import InputError
+from pipeline.progress import track
 
 log = logging.getLogger(__name__)
 
@@ -102,11 +103,7 @@ def render_sequence(
     (staging / "image_1").mkdir()
     try:
         camera_poses, seen = [], []
-        frames = range(len(world_from_body))
-        if sys.stderr.isatty():
-            from tqdm import tqdm
-
-            frames = tqdm(frames, desc="render", unit="frame")
+        frames = track(range(len(world_from_body)), len(world_from_body), "render", "frame")
         render_started = time.perf_counter()
         for i in frames:
             left_pose, right_pose = stereo_poses(world_from_body[i], config.camera.baseline)

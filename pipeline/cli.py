@@ -9,19 +9,64 @@ import argparse
 import logging
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
+from pipeline import __version__
 from pipeline.errors import InputError, SolverError, describe_os_error
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
+SCENARIOS = ("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
+# Our own loggers: -v shows their debug lines; third-party libraries stay at warnings.
+OWN_LOGGERS = ("pipeline", "data_tools", "mmslam")
 
 EXAMPLES = """examples:
   mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1 --odom-noise-scale 2
   mmslam inspect out/kitti05.mcap
   mmslam replay out/kitti05.mcap --method mm-nh --out out/kitti05-mmnh --rrd out/run.rrd
+  mmslam export out/kitti05.mcap --ground-truth out/kitti05-gt.tum
+  mmslam plot out/kitti05.mcap out/kitti05-mmnh --out out/kitti05.png
   mmslam frontend out/seq --out out/seq.mcap
-  mmslam sweep configs/sweeps/small.toml --out out/sweep --workers 2
+  mmslam sweep small --out out/sweep --workers 2
+
+-v and -q go anywhere on the line; `mmslam COMMAND -h` shows each command's options.
 """
+
+COMMAND_EXAMPLES = {
+    "simulate": """examples:
+  mmslam simulate indoor-tags --out out/tags.mcap --seed 2 --odom-noise-scale 4 \\
+      --misclassification 0.1 --true-covariance
+  mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1
+  mmslam simulate indoor-tags --out out/short.mcap --config my-route.toml
+""",
+    "frontend": """examples:
+  mmslam frontend ../shared/data/real/kitti-clip-1 --out out/clip.mcap
+  mmslam frontend out/seq --out out/seq.mcap --images --rrd out/seq.rrd
+""",
+    "replay": """examples:
+  mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh
+  mmslam replay out/tags.mcap --method ml --out out/tags-ml --rrd out/tags-ml.rrd
+  mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh --mcap out/tags-mm-nh.mcap
+  mmslam replay out/tags.mcap --method gpda --out out/tags-gpda --config strict.toml
+""",
+    "inspect": """examples:
+  mmslam inspect out/tags.mcap
+  mmslam inspect out/tags.mcap --json | python -m json.tool
+""",
+    "sweep": """examples:
+  mmslam sweep small --out out/sweep-small --workers 2
+  mmslam sweep configs/sweeps/indoor-tags.toml --out out/indoor --dask tcp://host:8786
+""",
+    "export": """examples:
+  mmslam export out/tags.mcap --ground-truth out/tags-gt.tum
+  mmslam export out/tags.mcap --ground-truth out/gt.tum --landmarks out/gt-landmarks.csv
+  evo_ape tum out/tags-gt.tum out/tags-mm-nh/trajectory.tum --align_origin
+""",
+    "plot": """examples:
+  mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
+""",
+}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -31,11 +76,57 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _add_viz_options(parser: argparse.ArgumentParser) -> None:
-    viz = parser.add_mutually_exclusive_group()
-    viz.add_argument("--rrd", type=Path, metavar="FILE", help="save a Rerun recording to FILE")
-    viz.add_argument("--spawn", action="store_true", help="stream to a new Rerun viewer")
-    viz.add_argument("--connect", metavar="ADDR", help="stream to a running Rerun viewer")
+def number_in(
+    kind: type, low: float | None = None, high: float | None = None
+) -> Callable[[str], Any]:
+    """An argparse type: `kind` within [low, high] (either end open when None)."""
+    name = "an integer" if kind is int else "a number"
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {name}, got {text!r}") from None
+        if (kind is float and value != value) or value in (float("inf"), float("-inf")):
+            raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            if high is None:
+                wanted = f">= {low:g}"
+            elif low is None:
+                wanted = f"<= {high:g}"
+            else:
+                wanted = f"within {low:g}..{high:g}"
+            raise argparse.ArgumentTypeError(f"must be {wanted}, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
+
+
+def builtin_sweeps() -> list[str]:
+    from pipeline.settings import config_path
+
+    return sorted(p.stem for p in config_path("sweeps").glob("*.toml"))
+
+
+def sweep_config(name_or_path: str) -> Path:
+    """A sweep file, or the name of a built-in sweep (`small` is configs/sweeps/small.toml)."""
+    from pipeline.settings import config_path
+
+    path = Path(name_or_path)
+    if path.exists() or path.suffix or len(path.parts) > 1:
+        return path
+    builtin = config_path(f"sweeps/{name_or_path}.toml")
+    if not builtin.exists():
+        raise InputError(
+            f"sweep {name_or_path!r}: no such file and no built-in sweep of that name; "
+            f"built-in: {', '.join(builtin_sweeps())}"
+        )
+    return builtin
+
+
+def _command_line(args: argparse.Namespace) -> list[str]:
+    return ["mmslam", *args.argv]
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
@@ -85,7 +176,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.workers is not None and args.dask is not None:
         raise InputError("--workers and --dask: choose one")
     summary = run_sweep(
-        args.config,
+        sweep_config(args.config),
         args.out,
         workers=args.workers,
         dask_address=args.dask,
@@ -116,11 +207,74 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     from pipeline.viz import sink_from_options
 
     config = load_config(args.config)
-    sink = sink_from_options(args.rrd, args.spawn, args.connect, application="mmslam replay")
-    result = replay(args.log, args.method, args.out, config, sink=sink, progress=not args.quiet)
+    sink = sink_from_options(
+        args.rrd, args.spawn, args.connect, application="mmslam replay", mcap=args.mcap
+    )
+    result = replay(
+        args.log,
+        args.method,
+        args.out,
+        config,
+        sink=sink,
+        progress=not args.quiet,
+        command=_command_line(args),
+    )
     logging.getLogger("mmslam").info("wrote %s", args.out)
     print(result.summary_line())
     return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from pipeline.export import export_ground_truth
+
+    for path in export_ground_truth(args.log, args.ground_truth, args.landmarks):
+        print(f"wrote {path}")
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from data_tools.plot_runs import plot_runs
+
+    plot_runs(args.log, args.runs, args.out)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _add_viz_options(parser: argparse.ArgumentParser) -> None:
+    viz = parser.add_mutually_exclusive_group()
+    viz.add_argument("--rrd", type=Path, metavar="FILE", help="save a Rerun recording to FILE")
+    viz.add_argument("--spawn", action="store_true", help="stream to a new Rerun viewer")
+    viz.add_argument("--connect", metavar="ADDR", help="stream to a running Rerun viewer")
+
+
+def _verbosity(defaults: bool) -> argparse.ArgumentParser:
+    """-v and -q, for the main parser (`defaults`) and every subcommand (no defaults, so that
+    a subcommand without them keeps what was given before it)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    keep = {} if defaults else {"default": argparse.SUPPRESS}
+    group = parent.add_mutually_exclusive_group()
+    group.add_argument(
+        "-v", "--verbose", action="store_true", help="log mmslam's debug messages", **keep
+    )
+    group.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress, errors only", **keep
+    )
+    return parent
+
+
+def _subcommand(
+    commands: Any, name: str, help_text: str, run: Callable[[argparse.Namespace], int]
+) -> argparse.ArgumentParser:
+    parser = commands.add_parser(
+        name,
+        help=help_text,
+        description=help_text[0].upper() + help_text[1:] + ".",
+        epilog=COMMAND_EXAMPLES[name],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        parents=[_verbosity(defaults=False)],
+    )
+    parser.set_defaults(run=run)
+    return parser
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -129,75 +283,118 @@ def build_parser() -> argparse.ArgumentParser:
         description="Robust semantic SLAM with max-mixture data association over stereo logs.",
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
+        parents=[_verbosity(defaults=True)],
     )
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    parser.add_argument("--version", action="version", version=f"mmslam {__version__}")
+    commands = parser.add_subparsers(
+        dest="command", required=True, parser_class=_Parser, metavar="COMMAND"
+    )
 
-    simulate = commands.add_parser("simulate", help="write a log from a built-in scenario")
-    simulate.add_argument("scenario", choices=("indoor-tags", "kitti05-cars"))
+    simulate = _subcommand(
+        commands, "simulate", "write a log from a built-in scenario", _cmd_simulate
+    )
+    simulate.add_argument("scenario", choices=SCENARIOS)
     simulate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
-    simulate.add_argument("--seed", type=int, default=0, help="draws all noise (default 0)")
     simulate.add_argument(
-        "--odom-noise-scale", type=float, metavar="K",
-        help="times the paper's added odometry noise, 0..10 (default: the scenario's)",
+        "--seed", type=number_in(int, 0), default=0, help="draws all noise, >= 0 (default 0)"
+    )
+    simulate.add_argument(
+        "--odom-noise-scale", type=number_in(float, 0), metavar="K",
+        help="times the paper's added odometry noise, within 0..100; the paper sweeps 0..10 "
+        "(default: the scenario's)",
     )  # fmt: skip
     simulate.add_argument(
-        "--misclassification", type=float, default=0.0, metavar="A",
+        "--misclassification", type=number_in(float, 0, 1), default=0.0, metavar="A",
         help="detector misclassification rate alpha, 0..1 (default 0)",
     )  # fmt: skip
-    simulate.add_argument("--num-classes", type=int, metavar="C", help="semantic classes")
+    simulate.add_argument(
+        "--num-classes", type=number_in(int, 1), metavar="C",
+        help="semantic classes, >= 1 (default: the scenario's)",
+    )  # fmt: skip
     simulate.add_argument(
         "--true-covariance", action="store_true",
         help="write the odometry covariance of the noise drawn, not the calibrated model's",
     )  # fmt: skip
     simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
-    simulate.set_defaults(run=_cmd_simulate)
 
-    frontend = commands.add_parser("frontend", help="stereo images to a detection log")
+    frontend = _subcommand(commands, "frontend", "stereo images to a detection log", _cmd_frontend)
     frontend.add_argument("sequence", type=Path, metavar="SEQUENCE_DIR")
     frontend.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
     frontend.add_argument(
         "--config", type=Path, metavar="FILE", help="TOML over configs/frontend.toml"
     )
     frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
-    frontend.add_argument("--quiet", action="store_true", help="no progress bars")
     _add_viz_options(frontend)
-    frontend.set_defaults(run=_cmd_frontend)
 
-    inspect = commands.add_parser("inspect", help="what a log holds, and whether it is valid")
+    inspect = _subcommand(
+        commands, "inspect", "what a log holds, and whether it is valid", _cmd_inspect
+    )
     inspect.add_argument("log", type=Path, metavar="LOG.mcap")
     inspect.add_argument("--json", action="store_true", help="print the report as JSON")
-    inspect.set_defaults(run=_cmd_inspect)
 
-    sweep = commands.add_parser(
-        "sweep", help="the paper's experiments: many replays, tables, plots"
+    sweep = _subcommand(
+        commands, "sweep", "the paper's experiments: many replays, tables, plots", _cmd_sweep
     )
-    sweep.add_argument("config", type=Path, metavar="CONFIG", help="e.g. configs/sweeps/small.toml")
+    sweep.add_argument(
+        "config", metavar="CONFIG",
+        help=f"a sweep file, or a built-in sweep: {', '.join(builtin_sweeps())}",
+    )  # fmt: skip
     sweep.add_argument("--out", required=True, type=Path, metavar="DIR")
-    sweep.add_argument("--workers", type=int, metavar="N", help="processes (default: every core)")
+    sweep.add_argument(
+        "--workers", type=number_in(int, 1), metavar="N", help="processes (default: every core)"
+    )
     sweep.add_argument("--dask", metavar="ADDRESS", help="run on a Dask cluster instead")
-    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
-    sweep.set_defaults(run=_cmd_sweep)
 
-    replay = commands.add_parser("replay", help="the SLAM back-end over a log")
+    replay = _subcommand(commands, "replay", "the SLAM back-end over a log", _cmd_replay)
     replay.add_argument("log", type=Path, metavar="LOG.mcap")
     replay.add_argument("--method", required=True, choices=METHODS)
     replay.add_argument("--out", required=True, type=Path, metavar="DIR")
     replay.add_argument(
         "--config", type=Path, metavar="FILE", help="TOML over configs/default.toml"
     )
-    replay.add_argument("--quiet", action="store_true", help="no progress bar")
+    replay.add_argument(
+        "--mcap", type=Path, metavar="FILE",
+        help="also write the estimate as Foxglove messages to FILE (an MCAP file)",
+    )  # fmt: skip
     _add_viz_options(replay)
-    replay.set_defaults(run=_cmd_replay)
+
+    export = _subcommand(
+        commands, "export", "a log's ground truth for other tools (evo, a spreadsheet)", _cmd_export
+    )
+    export.add_argument("log", type=Path, metavar="LOG.mcap")
+    export.add_argument(
+        "--ground-truth", type=Path, metavar="FILE.tum",
+        help="the ground-truth trajectory in TUM format, stamped as replay's trajectory.tum",
+    )  # fmt: skip
+    export.add_argument(
+        "--landmarks", type=Path, metavar="FILE.csv",
+        help="the ground-truth landmarks: id,x,y,z,class_id",
+    )  # fmt: skip
+
+    plot = _subcommand(
+        commands, "plot", "top-down plot of replays against the ground truth", _cmd_plot
+    )
+    plot.add_argument("log", type=Path, metavar="LOG.mcap")
+    plot.add_argument("runs", type=Path, nargs="+", metavar="RUN_DIR", help="replay --out folders")
+    plot.add_argument("--out", required=True, type=Path, metavar="FIGURE.png")
     return parser
 
 
+def configure_logging(verbose: bool, quiet: bool) -> None:
+    """Third-party libraries log warnings only; mmslam's own loggers debug with -v and errors
+    only with -q."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(logging.WARNING)
+    level = logging.DEBUG if verbose else logging.ERROR if quiet else logging.WARNING
+    for name in OWN_LOGGERS:
+        logging.getLogger(name).setLevel(level)
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING,
-        format="%(levelname)s %(name)s: %(message)s",
-    )
+    args.argv = argv
+    configure_logging(args.verbose, args.quiet)
     try:
         return args.run(args)
     except InputError as exc:

@@ -9,16 +9,25 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline import settings
-from pipeline.settings import POSITIVE, PROBABILITY, at_least, between, one_of, setting
+from pipeline.settings import ANY, POSITIVE, PROBABILITY, at_least, between, one_of, setting
 
 MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
+FIRST_CHOICES = ("joint", "prediction", "weights")
+NULL_MODELS = ("relative", "literal")
 
 
 @dataclass(frozen=True)
 class AssociationConfig:
     chi2_confidence: float = setting(PROBABILITY)
     null_weight: float = setting(PROBABILITY)
+    null_model: str = setting(one_of(*NULL_MODELS))
     null_sigma: float = setting(POSITIVE)
+    null_crossover_sq: float = setting(POSITIVE)
+    joint_candidate_confidence: float = setting(PROBABILITY)
+    joint_confidence: float = setting(PROBABILITY)
+    ambiguity_log_odds: float = setting(at_least(0.0))
+    max_search_nodes: int = setting(at_least(1))
+    min_loop_pairs: int = setting(at_least(1))
     joint_marginals: bool
     min_weight: float = setting(between(0.0, 1.0, high_open=True))
     search_sigmas: float = setting(at_least(0.0))
@@ -39,7 +48,24 @@ class GpdaConfig:
 @dataclass(frozen=True)
 class MixtureConfig:
     selection: str = setting(one_of(*MIXTURE_SELECTIONS))
+    first_choice: str = setting(one_of(*FIRST_CHOICES))
     max_switch_rounds: int = setting(at_least(1))
+
+
+@dataclass(frozen=True)
+class MergeConfig:
+    enabled: bool
+    every_keyframes: int = setting(at_least(1))
+    recent_keyframes: int = setting(at_least(1))
+    confidence: float = setting(PROBABILITY)
+    local_confidence: float = setting(PROBABILITY)
+    search_sigmas: float = setting(POSITIVE)
+    min_class_agreement: float = setting(between(0.0, 1.0))
+    prior_log_odds: float = setting(ANY)  # any finite number: negative favours a new landmark
+    loop_log_odds: float = setting(at_least(0.0))
+    local_log_odds: float = setting(at_least(0.0))
+    ambiguity_log_odds: float = setting(at_least(0.0))
+    max_search_nodes: int = setting(at_least(1))
 
 
 @dataclass(frozen=True)
@@ -61,6 +87,7 @@ class Config:
     landmarks: LandmarkConfig
     gpda: GpdaConfig
     mixture: MixtureConfig
+    merges: MergeConfig
     isam2: Isam2Config
     prior: PriorConfig
 

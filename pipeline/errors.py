@@ -12,7 +12,7 @@ class InputError(Exception):
 
 
 class LogError(InputError):
-    """A detection log that breaks the contract (../shared/CONTRACT.md)."""
+    """A detection log that breaks the contract (docs/log-format.md)."""
 
     def __init__(self, path: str, reason: str, topic: str | None = None, index: int | None = None):
         where = f"{topic} message {index}: " if topic is not None and index is not None else ""

@@ -7,6 +7,7 @@ the paper: translation in metres, rotation as the angle of the relative rotation
 from __future__ import annotations
 
 from collections import Counter
+from typing import Any
 
 import numpy as np
 
@@ -65,3 +66,77 @@ def association_counts(truth_ids: list[int | None], landmark_ids: list[int]) -> 
         else:
             counts["wrong"] += 1
     return counts
+
+
+def landmark_truth_one_to_one(
+    truth_ids: list[int | None], landmark_ids: list[int]
+) -> dict[int, int]:
+    """Each true landmark stands for at most one estimated landmark, and each estimated one
+    for at most one true one: the matching that keeps the most detections together (an
+    assignment problem). A duplicate of a true landmark is left unmatched, so its detections
+    count as wrong, which majority voting hides."""
+    from scipy.optimize import linear_sum_assignment
+    from scipy.sparse import coo_matrix
+
+    pairs = Counter(
+        (landmark, truth)
+        for truth, landmark in zip(truth_ids, landmark_ids, strict=True)
+        if landmark >= 0 and truth is not None and truth >= 0
+    )
+    if not pairs:
+        return {}
+    estimated = sorted({e for e, _ in pairs})
+    true = sorted({t for _, t in pairs})
+    row = {e: i for i, e in enumerate(estimated)}
+    col = {t: i for i, t in enumerate(true)}
+    shared = coo_matrix(
+        (
+            [n for n in pairs.values()],
+            ([row[e] for e, _ in pairs], [col[t] for _, t in pairs]),
+        ),
+        shape=(len(estimated), len(true)),
+    ).toarray()
+    rows, cols = linear_sum_assignment(shared, maximize=True)
+    return {estimated[r]: true[c] for r, c in zip(rows, cols, strict=True) if shared[r, c] > 0}
+
+
+def association_scores(truth_ids: list[int | None], landmark_ids: list[int]) -> dict[str, Any]:
+    """Association quality with landmarks matched to truth one to one.
+
+    Over detections of real landmarks (truth >= 0): `correct` went to the landmark matched to
+    their truth, `wrong` to another landmark (a duplicate included), `null` to none.
+    `precision` = correct / (correct + wrong), `recall` = correct / all of them.
+    `false_positives_used`: detections of nothing (truth -1) that pull on a landmark matched
+    to a real one. `landmarks_per_true`: estimated landmarks holding a real landmark's
+    detection, per real landmark seen."""
+    stands_for = landmark_truth_one_to_one(truth_ids, landmark_ids)
+    correct = wrong = null = false_used = 0
+    holding: set[int] = set()
+    seen: set[int] = set()
+    for truth, landmark in zip(truth_ids, landmark_ids, strict=True):
+        if truth is None:
+            continue
+        if truth < 0:
+            false_used += int(landmark in stands_for)
+            continue
+        seen.add(truth)
+        if landmark < 0:
+            null += 1
+            continue
+        holding.add(landmark)
+        if stands_for.get(landmark) == truth:
+            correct += 1
+        else:
+            wrong += 1
+    decided = correct + wrong
+    total = decided + null
+    return {
+        "correct": correct,
+        "wrong": wrong,
+        "null": null,
+        "precision": round(correct / decided, 6) if decided else 1.0,
+        "recall": round(correct / total, 6) if total else 1.0,
+        "false_positives_used": false_used,
+        "true_landmarks_seen": len(seen),
+        "landmarks_per_true": round(len(holding) / len(seen), 6) if seen else 0.0,
+    }

@@ -7,9 +7,8 @@ Runs the loop and nothing else: the algorithm is in `pipeline/backend`, the metr
 from __future__ import annotations
 
 import logging
-import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,13 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from pipeline import evaluation, outputs
+from pipeline import evaluation, outputs, provenance
 from pipeline.backend.factors import pose_from_message
 from pipeline.backend.slam import Backend, BackendResult
 from pipeline.config import Config
 from pipeline.errors import InputError, SolverError, first_line
 from pipeline.log import DetectionLog, read_log
 from pipeline.log.messages import Detection, Odometry
+from pipeline.progress import track
 from pipeline.viz.sink import NullSink, Sink
 
 logger = logging.getLogger(__name__)
@@ -97,11 +97,7 @@ def run_backend(
 ) -> Backend:
     confusion = np.asarray(log.metadata.confusion_matrix, dtype=float)
     backend = Backend(config, confusion, method)
-    steps = keyframes(log)
-    if progress and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        steps = tqdm(steps, total=log.num_poses, desc=f"replay {method}", unit="pose")
+    steps = track(keyframes(log), log.num_poses, f"replay {method}", "pose", enabled=progress)
     for odometry, detections in steps:
         report = backend.add_keyframe(odometry, detections)
         sink.keyframe(report, backend)
@@ -134,7 +130,9 @@ def compute_metrics(
         "translation_error_m": translation,
         "rotation_error_rad": rotation,
         "association": counts,
+        "association_one_to_one": evaluation.association_scores(truth, chosen),
         "switches": result.switches,
+        "merges": result.merges,
     }
 
 
@@ -182,9 +180,12 @@ def replay(
     config: Config,
     sink: Sink | None = None,
     progress: bool = True,
+    command: Sequence[str] | None = None,
 ) -> ReplayResult:
-    """Replay a log with an association method; write the contract's outputs to `out_dir`."""
+    """Replay a log with an association method; write the contract's outputs to `out_dir`,
+    and `run.json` (how they were made; `command` defaults to this process's)."""
     sink = sink or NullSink()
+    started, wall_start = provenance.utc_now(), time.perf_counter()
     out_dir = Path(out_dir)
     try:
         log = read_log(log_path, load_images=sink.wants_images)
@@ -196,7 +197,15 @@ def replay(
             result = backend.result()
             runtime_s = time.perf_counter() - start
             metrics = compute_metrics(log, result, method, runtime_s)
-            folder.commit(render_outputs(log, result, metrics), stale=[outputs.METRICS])
+            files = render_outputs(log, result, metrics)
+            files[provenance.RUN_RECORD] = provenance.run_json(
+                {"method": method, "backend": config},
+                [log_path],
+                started,
+                time.perf_counter() - wall_start,
+                command,
+            )
+            folder.commit(files, stale=[outputs.METRICS])
             sink.finish(result, metrics)
     finally:
         sink.close()

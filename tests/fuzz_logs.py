@@ -6,7 +6,8 @@ decompression bombs, huge integers, deep nesting, non-finite and extreme numbers
 ranges out of range, ill-conditioned covariances, stamps past int64 or going back, wrong types,
 missing fields, bad metadata (two records, duplicate or non-string class names), channels of
 the wrong schema or encoding, broken links between messages, and harmless changes (another
-chunking or compression, unknown topics, key order) that must change nothing.
+chunking or compression, unknown topics, Foxglove's protobuf topics, key order) that must
+change nothing.
 
 Each case says what it expects: `REFUSED` (exit 2, one line on stderr), `SAME` (exit 0 and the
 very log the original reads as), or `EITHER` (a random byte flip: one or the other). Run
@@ -442,6 +443,14 @@ def harmless_cases() -> Iterator[Case]:
         spec.channels["extra"] = ("/lidar/points", "foo.Bar", "protobuf", "cdr")
         spec.messages.insert(4, ["extra", b"\x00\x01 anything", SECOND])
 
+    def foxglove_topics(spec: LogSpec) -> None:  # as mmslam's writer adds them beside the log's
+        spec.channels["fox"] = ("/foxglove/tf", "foxglove.FrameTransform", "protobuf", "protobuf")
+        spec.channels["path"] = (
+            "/foxglove/odometry/path", "foxglove.PosesInFrame", "protobuf", "protobuf"
+        )  # fmt: skip
+        spec.messages.insert(4, ["fox", b"\x0a\x06\x08\x01\x10\x00", SECOND])
+        spec.messages.append(["path", b"\x0a\x06\x08\x01", SECOND])  # last, at the first stamp
+
     def shuffled_keys(spec: LogSpec) -> None:
         for message in spec.messages:
             message[1] = dict(reversed(list(message[1].items())))
@@ -466,6 +475,7 @@ def harmless_cases() -> Iterator[Case]:
     other_metadata = lambda s: s.metadata.insert(0, ("camera", {"model": "zed"}))  # noqa: E731
     edits = {
         "a topic the contract does not know": unknown_topic,
+        "Foxglove's topics in protobuf": foxglove_topics,
         "JSON keys in another order": shuffled_keys,
         "JSON with whitespace": spaced_json,
         "fields the contract does not know": extra_fields,

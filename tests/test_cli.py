@@ -1,16 +1,22 @@
 """The command line: exit status 2 with one line on bad input, nothing written lost."""
 
+import datetime
+import hashlib
 import json
+import logging
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import gtsam
 import numpy as np
 import pytest
 
+import pipeline
 from pipeline.backend.solver import Isam2Solver
-from pipeline.cli import main
+from pipeline.cli import COMMAND_EXAMPLES, builtin_sweeps, main, sweep_config
+from pipeline.settings import config_path
 from tests.synthetic import Scene, square_loop, write_scene
 from tests.test_log import BAD_MESSAGES, good_messages, write_raw
 
@@ -55,7 +61,13 @@ def test_replay_writes_the_contract_outputs(tmp_path, good_log, capsys):
     )
     assert status == 0 and "ml:" in out
     names = sorted(p.name for p in (tmp_path / "o").iterdir())
-    assert names == ["associations.csv", "landmarks.csv", "metrics.json", "trajectory.tum"]
+    assert names == [
+        "associations.csv",
+        "landmarks.csv",
+        "metrics.json",
+        "run.json",
+        "trajectory.tum",
+    ]
     metrics = json.loads((tmp_path / "o" / "metrics.json").read_text())
     for key in (
         "method",
@@ -251,3 +263,137 @@ def test_a_solver_failure_exits_1_with_one_line_and_leaves_earlier_outputs(
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "iSAM2 update 3 failed: Indeterminate linear system" in err
     assert snapshot(out) == before
+
+
+# --- how a run was made, and the command line around the commands ---------------------------
+
+
+def test_run_json_says_how_the_outputs_were_made(tmp_path, good_log, capsys):
+    args = ["replay", str(good_log), "--method", "mm", "--out", str(tmp_path / "o"), "-q"]
+    status, _, _ = run_cli(capsys, *args)
+    assert status == 0
+    record = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert record["mmslam_version"] == pipeline.__version__
+    assert record["command"] == ["mmslam", *args]
+    assert record["config"]["method"] == "mm"
+    assert record["config"]["backend"]["association"]["chi2_confidence"] == 0.9
+    (log_input,) = record["inputs"]
+    data = good_log.read_bytes()
+    assert log_input["sha256"] == hashlib.sha256(data).hexdigest()
+    assert log_input["size_bytes"] == len(data)
+    started = datetime.datetime.fromisoformat(record["started_utc"])
+    assert abs((datetime.datetime.now(datetime.UTC) - started).total_seconds()) < 600
+    assert record["wall_s"] > 0
+
+
+def test_version(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out == f"mmslam {pipeline.__version__}\n"
+
+
+@pytest.mark.parametrize("command", sorted(COMMAND_EXAMPLES))
+def test_every_command_shows_examples(capsys, command):
+    with pytest.raises(SystemExit) as info:
+        main([command, "--help"])
+    assert info.value.code == 0
+    assert f"examples:\n  mmslam {command} " in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_verbosity_goes_anywhere_and_leaves_third_party_logs_quiet(
+    tmp_path, good_log, capsys, where
+):
+    replay = ["replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "o")]
+    assert main(["-v", *replay] if where == "before" else [*replay, "-v"]) == 0
+    assert logging.getLogger("pipeline.replay").isEnabledFor(logging.DEBUG)
+    assert not logging.getLogger("evo").isEnabledFor(logging.INFO)
+    assert not logging.getLogger("matplotlib").isEnabledFor(logging.INFO)
+    capsys.readouterr()
+    assert main(["-q", *replay] if where == "before" else [*replay, "-q"]) == 0
+    assert not logging.getLogger("pipeline.replay").isEnabledFor(logging.WARNING)
+    assert "poses" not in capsys.readouterr().err  # no progress either
+
+
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["simulate", "indoor-tags", "--misclassification", "1.5"], "within 0..1, got 1.5"),
+        (["simulate", "indoor-tags", "--odom-noise-scale", "-2"], ">= 0, got -2"),
+        (["simulate", "indoor-tags", "--seed", "-1"], ">= 0, got -1"),
+        (["simulate", "indoor-tags", "--num-classes", "0"], ">= 1, got 0"),
+        (["simulate", "indoor-tags", "--odom-noise-scale", "nan"], "finite"),
+        (["sweep", "small", "--workers", "0"], ">= 1, got 0"),
+    ],
+)
+def test_ranges_in_the_help_are_enforced(tmp_path, capsys, args, needle):
+    with pytest.raises(SystemExit) as info:
+        main([*args, "--out", str(tmp_path / "x")])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err
+    assert not (tmp_path / "x").exists()
+
+
+def test_sweeps_by_name(tmp_path, capsys):
+    assert sweep_config("small") == config_path("sweeps/small.toml")
+    assert "small" in builtin_sweeps() and "kitti05" in builtin_sweeps()
+    assert sweep_config("my/own.toml") == Path("my/own.toml")
+    status, _, err = run_cli(capsys, "sweep", "smal", "--out", str(tmp_path / "s"))
+    assert_one_line_error(status, err, "no built-in sweep", "small")
+
+
+def test_export_gives_evo_the_ground_truth_and_evo_agrees_with_the_metrics(
+    tmp_path, good_log, capsys
+):
+    from evo.core import metrics, sync
+    from evo.tools import file_interface
+
+    run = tmp_path / "run"
+    assert main(["replay", str(good_log), "--method", "mm-nh", "--out", str(run), "-q"]) == 0
+    gt, landmarks = tmp_path / "gt.tum", tmp_path / "gt.csv"
+    status, out, _ = run_cli(
+        capsys, "export", str(good_log), "--ground-truth", str(gt), "--landmarks", str(landmarks)
+    )
+    assert status == 0 and f"wrote {gt}" in out
+    reference = file_interface.read_tum_trajectory_file(str(gt))
+    estimate = file_interface.read_tum_trajectory_file(str(run / "trajectory.tum"))
+    reference, estimate = sync.associate_trajectories(reference, estimate)
+    estimate.align_origin(reference)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((reference, estimate))
+    ours = json.loads((run / "metrics.json").read_text())["translation_error_m"]
+    assert ape.get_statistic(metrics.StatisticsType.rmse) == pytest.approx(ours["rmse"], abs=1e-6)
+    assert ape.get_statistic(metrics.StatisticsType.max) == pytest.approx(ours["max"], abs=1e-6)
+    rows = landmarks.read_text().splitlines()
+    assert rows[0] == "id,x,y,z,class_id"
+    assert rows[1:] == ["0,5.000000,3.000000,0.000000,0", "1,9.000000,-3.000000,0.000000,1",
+                        "2,3.000000,9.000000,0.000000,0"]  # fmt: skip
+
+
+def test_export_without_ground_truth_exits_2_and_writes_nothing(tmp_path, capsys):
+    scene = Scene(square_loop(4.0, 1.0, 0.25), np.array([[3.0, 1.0, 0.0]]), np.array([0]))
+    log = write_scene(tmp_path / "no-truth.mcap", scene, ground_truth=False)
+    gt = tmp_path / "gt.tum"
+    status, _, err = run_cli(capsys, "export", str(log), "--ground-truth", str(gt))
+    assert_one_line_error(status, err, "no /ground_truth/pose")
+    assert not gt.exists()
+    status, _, err = run_cli(capsys, "export", str(log))
+    assert_one_line_error(status, err, "nothing to export")
+
+
+def test_plot_labels_its_axes_in_metres(tmp_path, good_log, capsys):
+    from data_tools.plot_runs import figure
+
+    run = tmp_path / "run"
+    assert main(["replay", str(good_log), "--method", "ml", "--out", str(run), "-q"]) == 0
+    fig = figure(good_log, [run])
+    assert [(ax.get_xlabel(), ax.get_ylabel()) for ax in fig.axes] == [("x (m)", "y (m)")]
+    out = tmp_path / "plot.png"
+    status, _, _ = run_cli(capsys, "plot", str(good_log), str(run), "--out", str(out))
+    assert status == 0 and out.read_bytes().startswith(b"\x89PNG")
+    status, _, err = run_cli(capsys, "plot", str(good_log), str(run), "--out", str(out) + ".xyz")
+    assert_one_line_error(status, err, "not an image format")
+    status, _, err = run_cli(capsys, "plot", str(good_log), str(tmp_path), "--out", str(out))
+    assert_one_line_error(status, err, "metrics.json")

@@ -6,13 +6,20 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import re
 import shutil
+import struct
+import subprocess
+import sys
 import tempfile
+import zlib
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
+from pipeline.cli import main
 from pipeline.datasets.kitti import BODY_FROM_CAMERA, KittiSequence, camera_poses_to_body
 from pipeline.datasets.plain import PlainSequence
 from pipeline.errors import InputError
@@ -135,19 +142,28 @@ def test_tag_detections_match_the_ground_truth(demo_log):
     assert np.median(relative_errors) < 0.01
 
 
-def test_same_sequence_in_the_plain_layout(tmp_path):
+def plain_sequence(root: Path, frames: int = 6, swapped: bool = False, **camera) -> Path:
+    """The first frames of the rendered demo in the plain layout; `camera` changes its
+    calibration, `swapped` puts the left images in right/ and the right ones in left/."""
     source = KittiSequence(rendered_demo())
-    root = tmp_path / "plain"
     (root / "left").mkdir(parents=True)
     (root / "right").mkdir()
-    for index in range(6):
-        shutil.copy(source.left_files[index], root / "left" / f"frame{index:03d}.png")
-        shutil.copy(source.right_files[index], root / "right" / f"frame{index:03d}.png")
-    k = source.intrinsics
+    sides = ("right", "left") if swapped else ("left", "right")
+    for index in range(frames):
+        shutil.copy(source.left_files[index], root / sides[0] / f"frame{index:03d}.png")
+        shutil.copy(source.right_files[index], root / sides[1] / f"frame{index:03d}.png")
+    k = dataclasses.asdict(source.intrinsics) | camera
     (root / "calibration.toml").write_text(
-        f"[camera]\nfx = {k.fx}\nfy = {k.fy}\ncx = {k.cx}\ncy = {k.cy}\nbaseline = {k.baseline}\n"
-        f"width = {k.width}\nheight = {k.height}\n[sequence]\nframe_rate = 5.0\n"
+        "[camera]\n"
+        + "".join(f"{key} = {k[key]}\n" for key in ("fx", "fy", "cx", "cy", "baseline"))
+        + "[sequence]\nframe_rate = 5.0\n"
     )
+    return root
+
+
+def test_same_sequence_in_the_plain_layout(tmp_path):
+    root = plain_sequence(tmp_path / "plain")
+    k = KittiSequence(rendered_demo()).intrinsics
     sequence = open_sequence(root)
     assert isinstance(sequence, PlainSequence)
     assert sequence.intrinsics == k
@@ -251,3 +267,119 @@ def test_object_boxes_get_classes_after_the_tags_and_their_true_ids():
     metadata = class_metadata(config, stage, "test")
     assert metadata.class_names == ("tag_mod2_0", "tag_mod2_1", "car")
     np.testing.assert_allclose(metadata.confusion_matrix, np.eye(3))
+
+
+# --- bad input, as the command line reports it -----------------------------------------------
+
+
+def damage_size(root: Path) -> str:
+    image = cv2.imread(str(root / "right" / "frame002.png"))
+    cv2.imwrite(str(root / "right" / "frame002.png"), cv2.resize(image, (306, 92)))
+    return r"frame 2 \(right/frame002\.png\) is 306x92, the sequence's images are 613x185"
+
+
+def tiny_images(root: Path) -> str:
+    for path in sorted(root.glob("*/*.png")):
+        cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path)), (24, 8)))
+    (root / "calibration.toml").write_text(
+        "[camera]\nfx = 14.0\nfy = 14.0\ncx = 12.0\ncy = 4.0\nbaseline = 0.5\n"
+    )
+    return r"visual odometry lost every frame \(too few corners \(\d\) in the first 24x8 left"
+
+
+BAD_SEQUENCES = {
+    "size changes": (plain_sequence, damage_size),
+    "nan in the calibration": (
+        lambda root: plain_sequence(root, fx="nan"),
+        lambda root: r"calibration.toml: 'camera.fx' must be a number, got nan",
+    ),
+    "principal point outside": (
+        lambda root: plain_sequence(root, cx=700.0),
+        lambda root: r"principal point \(700, 91\.3052\) lies outside the 613x185 images",
+    ),
+    "missing right image": (
+        plain_sequence,
+        lambda root: (
+            (root / "right" / "frame003.png").unlink()
+            or r"left/frame003\.png has no image of the same name in right/"
+        ),
+    ),
+    "swapped folders": (
+        lambda root: plain_sequence(root, swapped=True),
+        lambda root: r"lost every frame \(the left and right images look swapped\)",
+    ),
+    "tiny images": (plain_sequence, tiny_images),
+}
+
+
+@pytest.mark.parametrize("case", BAD_SEQUENCES)
+def test_bad_sequences_exit_2_with_one_line_and_keep_the_earlier_log(tmp_path, capfd, case):
+    make, damage = BAD_SEQUENCES[case]
+    root = make(tmp_path / "seq")
+    needle = damage(root)
+    out = tmp_path / "out.mcap"
+    out.write_bytes(b"an earlier log")
+    capfd.readouterr()
+    assert main(["frontend", str(root), "--out", str(out), "--quiet"]) == 2
+    captured = capfd.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 1, captured.err
+    assert re.search(needle, lines[0]), lines[0]
+    assert lines[0].startswith("mmslam frontend: error: ")
+    assert out.read_bytes() == b"an earlier log"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.mcap", "seq"]
+
+
+def test_decoder_warnings_stay_off_stderr(tmp_path, capfd):
+    # Every PNG with a text chunk that fails its CRC: libpng warns for each on stderr, from C.
+    root = plain_sequence(tmp_path / "seq", frames=3)
+    for path in root.glob("*/*.png"):
+        data = path.read_bytes()
+        text = b"Comment\x00x"
+        crc = (zlib.crc32(b"tEXt" + text) ^ 1) & 0xFFFFFFFF
+        chunk = struct.pack(">I", len(text)) + b"tEXt" + text + struct.pack(">I", crc)
+        path.write_bytes(data[:33] + chunk + data[33:])
+    capfd.readouterr()
+    assert main(["frontend", str(root), "--out", str(tmp_path / "out.mcap"), "--quiet"]) == 0
+    assert "libpng" not in capfd.readouterr().err
+
+
+def test_the_installed_command_says_one_line_when_every_frame_is_lost(tmp_path):
+    # Logging reaches the real stderr here (in-process, pytest captures it): no warning per
+    # lost frame may come before the error.
+    root = plain_sequence(tmp_path / "seq", frames=4, swapped=True)
+    command = Path(sys.executable).with_name("mmslam")
+    done = subprocess.run(
+        [str(command), "frontend", str(root), "--out", str(tmp_path / "out.mcap")],
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "look swapped" in done.stderr, done.stderr
+
+
+class RecordingStage:
+    """An object stage that finds nothing and records the images it was given."""
+
+    class_names = ("car",)
+
+    def __init__(self):
+        self.shapes = []
+
+    def detect(self, left, right, intrinsics):
+        self.shapes.append((left.shape, right.shape))
+        return []
+
+
+def test_colour_images_reach_the_object_stage(tmp_path):
+    root = plain_sequence(tmp_path / "seq", frames=3)
+    for path in root.glob("*/*.png"):
+        grey = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(path), cv2.merge([grey // 2, grey, grey]))  # channels that differ
+    sequence = open_sequence(root)
+    assert sequence.colour
+    stage = RecordingStage()
+    config = load_frontend_config()
+    run_objects(sequence, [0, 2], stage, 2, None, None, config, progress=False)
+    assert stage.shapes == [((185, 613, 3), (185, 613, 3))] * 2
+    assert sequence[0][0].shape == (185, 613)  # odometry and tags get grey

@@ -6,7 +6,11 @@ import pytest
 
 from pipeline import geometry as lie
 from pipeline.backend import geometry as g
-from pipeline.backend.factors import point_measurement_factor, unit3_range_covariance
+from pipeline.backend.factors import (
+    direction_frame,
+    point_measurement_factor,
+    virtual_stereo_covariance,
+)
 from pipeline.log.messages import Detection
 from tests.numerics import numerical_jacobian
 
@@ -140,34 +144,35 @@ def _factor_and_ours(bearing, elevation, cov, dz):
     return 2.0 * factor.error(values), dz @ np.linalg.solve(cov, dz)
 
 
-# (-2.0, -0.4) looks along a direction whose x and z components nearly tie: GTSAM's Unit3
-# basis flips there between the measured and the predicted direction.
-@pytest.mark.parametrize("bearing,elevation", [(0.3, 0.1), (-2.0, -0.4), (3.0, 0.8)])
-def test_bearing_range_factor_weighs_isotropic_direction_noise_like_our_covariance(
-    bearing, elevation
-):
-    sigma = 0.02
-    cov = np.diag([(sigma / np.cos(elevation)) ** 2, sigma**2, 0.09])
+# (-2.0, -0.4) looks along a direction whose x and z components nearly tie, where GTSAM's Unit3
+# basis flips; (0.0, 0.0) is a planar sensor straight ahead, elevation far tighter than bearing.
+@pytest.mark.parametrize("bearing,elevation", [(0.3, 0.1), (-2.0, -0.4), (3.0, 0.8), (0.0, 0.0)])
+def test_point_factor_weighs_residuals_with_the_whole_detection_covariance(bearing, elevation):
+    # anisotropic and correlated: bearing 0.03, elevation 0.005, range 0.3
+    cov = np.array([[9e-4, 3e-5, 0.0], [3e-5, 2.5e-5, 1e-4], [0.0, 1e-4, 0.09]])
     for _ in range(5):
-        dz = RNG.normal(size=3) * np.sqrt(np.diag(cov)) * 0.3
+        dz = RNG.multivariate_normal(np.zeros(3), cov) * 0.3
         theirs, ours = _factor_and_ours(bearing, elevation, cov, dz)
-        assert theirs == pytest.approx(ours, rel=2e-2)
+        assert theirs == pytest.approx(ours, rel=3e-2)
 
 
-@pytest.mark.parametrize("bearing,elevation", [(0.3, 0.1), (-2.0, -0.4)])
-def test_bearing_range_factor_never_claims_more_information_than_the_detection(bearing, elevation):
-    cov = np.diag([4e-4, 1e-4, 0.09])
-    for _ in range(10):
-        dz = RNG.normal(size=3) * np.sqrt(np.diag(cov)) * 0.3
-        theirs, ours = _factor_and_ours(bearing, elevation, cov, dz)
-        assert theirs <= ours * 1.02
+def test_virtual_stereo_covariance_hand_computed():
+    # elevation 60 degrees halves the bearing's angle; range 2 m: u_right adds range / 2
+    sb, se, sr = 0.02, 0.03, 0.5
+    mapped = virtual_stereo_covariance(np.pi / 3, 2.0, np.diag([sb**2, se**2, sr**2]))
+    a = (0.5 * sb) ** 2
+    expected = np.array([[a, a, 0.0], [a, a + (sr / 2) ** 2, 0.0], [0.0, 0.0, se**2]])
+    np.testing.assert_allclose(mapped, expected, atol=1e-15)
 
 
-def test_unit3_range_covariance_of_hand_computed_case():
-    # bearing sigma 0.02 at elevation 60 degrees moves the direction by 0.01; elevation by 0.03
-    cov = np.diag([0.02**2, 0.03**2, 0.25])
-    mapped = unit3_range_covariance(0.5, np.pi / 3, cov)
-    np.testing.assert_allclose(mapped, np.diag([0.03**2, 0.03**2, 0.25]), atol=1e-12)
+def test_direction_frame_looks_along_the_detection():
+    frame = direction_frame(0.4, -0.3)
+    np.testing.assert_allclose(frame.T @ frame, np.eye(3), atol=1e-12)
+    assert np.linalg.det(frame) == pytest.approx(1.0)
+    np.testing.assert_allclose(
+        frame[:, 2], lie.point_from_bearing_elevation_range(np.array([0.4, -0.3, 1.0])), atol=1e-12
+    )
+    assert frame[2, 0] == pytest.approx(0.0)  # "left" is horizontal
 
 
 def test_batched_point_prediction_matches_one_by_one():

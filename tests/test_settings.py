@@ -22,6 +22,7 @@ from pipeline.viz.config import _VizFile
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 TYPED_FILES = {
     "default.toml": Config,
+    "paper.toml": Config,
     "viz.toml": _VizFile,
     "frontend.toml": FrontendConfig,
     "renderer/demo.toml": RendererConfig,
@@ -76,6 +77,46 @@ def test_a_setting_outside_its_range_is_refused_naming_the_key(tmp_path, line):
         load_config(config)
     assert str(raised.value).startswith(f"config {config}: {needle}")
     assert "\n" not in str(raised.value)
+
+
+NEW_BACKEND_SETTINGS = {  # the association, mixture and merge keys of back-end v2
+    "[association]\nnull_model = 'gaussian'": "'association.null_model' must be one of relative",
+    "[association]\njoint_confidence = 1.0": "'association.joint_confidence' must be in (0, 1)",
+    "[association]\nambiguity_log_odds = -1.0": "'association.ambiguity_log_odds' must be >= 0",
+    "[association]\nmin_loop_pairs = 0": "'association.min_loop_pairs' must be >= 1, got 0",
+    "[association]\nnull_crossover_sq = 0.0": "'association.null_crossover_sq' must be > 0",
+    "[mixture]\nfirst_choice = 'best'": "'mixture.first_choice' must be one of joint, prediction",
+    "[merges]\nmin_class_agreement = 1.5": "'merges.min_class_agreement' must be in [0, 1]",
+    "[merges]\nevery_keyframes = 0": "'merges.every_keyframes' must be >= 1, got 0",
+    "[merges]\nlocal_confidence = 0.0": "'merges.local_confidence' must be in (0, 1)",
+    "[merges]\nloop_log_odds = -0.5": "'merges.loop_log_odds' must be >= 0",
+    "[merges]\nsearch_sigmas = 0.0": "'merges.search_sigmas' must be > 0",
+}
+
+
+@pytest.mark.parametrize("text", sorted(NEW_BACKEND_SETTINGS))
+def test_the_association_and_merge_keys_are_refused_outside_their_ranges(tmp_path, text):
+    config = tmp_path / "bad.toml"
+    config.write_text(text + "\n")
+    with pytest.raises(InputError) as raised:
+        load_config(config)
+    assert str(raised.value).startswith(f"config {config}: {NEW_BACKEND_SETTINGS[text]}")
+
+
+def test_prior_log_odds_takes_any_finite_number(tmp_path):
+    config = tmp_path / "odds.toml"
+    config.write_text("[merges]\nprior_log_odds = -2.5\n")
+    assert load_config(config).merges.prior_log_odds == -2.5
+    config.write_text("[merges]\nprior_log_odds = inf\n")
+    with pytest.raises(InputError, match=r"'merges\.prior_log_odds' must be finite"):
+        load_config(config)
+
+
+def test_the_papers_settings_load_over_the_defaults():
+    paper = load_config(settings.config_path("paper.toml"))
+    assert (paper.association.null_model, paper.mixture.first_choice) == ("literal", "weights")
+    assert not paper.merges.enabled
+    assert paper.isam2 == load_config().isam2
 
 
 def test_ranges_hold_in_tuples_too(tmp_path):

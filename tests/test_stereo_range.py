@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from data_tools.bench_objects import TEDDY, teddy_grid
 from pipeline.datasets.kitti import StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend import geometry as g
@@ -68,6 +69,9 @@ def test_box_pixel_covariance_by_hand():
     )
     covariance = sr.box_pixel_covariance((100.0, 50.0, 140.0, 90.0), config)  # 40 x 40 box
     np.testing.assert_allclose(covariance, np.diag([25.0, 25.0, 0.25]))  # hypot(3, 4) = 5
+    # A spread of 1.2 px in the box's disparities: 0.5^2 + 1.2^2 = 1.69.
+    covariance = sr.box_pixel_covariance((100.0, 50.0, 140.0, 90.0), config, spread=1.2)
+    np.testing.assert_allclose(covariance, np.diag([25.0, 25.0, 1.69]))
 
 
 def test_depth_variance_is_z2_sigma_d_over_fb():
@@ -100,22 +104,33 @@ def test_measurement_covariance_matches_numerical_jacobian():
 # --- the robust statistic --------------------------------------------------------------------
 
 
-def test_robust_disparity_uses_the_centre_and_ignores_invalid_pixels():
-    box = np.full((20, 40), 50.0)  # background at the box's edges
-    box[5:15, 10:30] = 12.0  # the object: the central half
-    box[8, 12:20] = np.nan  # unmatched pixels
-    box[10, 10:13] = 0.5  # below min_disparity
+def test_central_box_by_hand():
+    # 100 x 40 px from (10.4, 20.0): rounded outwards to columns 10..111 (101 px) and rows
+    # 20..60; half of each, centred: 50 columns from 10 + 25 = 35, 20 rows from 20 + 10 = 30.
+    assert sr.central_box((10.4, 20.0, 110.2, 60.0), 0.5, 640, 480) == (35, 30, 85, 50)
+    # Clipped to the image first: columns 600..640.
+    assert sr.central_box((600.0, 0.0, 700.0, 10.0), 0.5, 640, 480) == (610, 2, 630, 7)
+    assert sr.central_box((5.0, 5.0, 6.0, 6.0), 0.5, 640, 480) == (5, 5, 6, 6)
+
+
+def test_robust_disparity_ignores_invalid_pixels_and_measures_the_spread():
+    box = np.full((10, 20), 12.0)
+    box[:, 15:] = 16.0  # a second surface in a quarter of the pixels
+    box[3, 2:7] = np.nan  # unmatched pixels
+    box[5, 0:3] = 0.5  # below min_disparity
     found = sr.robust_disparity(box, CONFIG)
     assert found is not None
+    assert (found.total, found.valid) == (200, 200 - 5 - 3)
     assert found.disparity == 12.0
-    assert found.spread == 0.0
-    assert found.total == 200
-    assert found.valid == 200 - 8 - 3
+    # 50 of the 192 valid values are 16: the upper quartile (at 143.25 of 191) lies among them.
+    assert found.spread == pytest.approx((16.0 - 12.0) / 1.349)
+    box[:, 15:] = 12.0
+    assert sr.robust_disparity(box, CONFIG).spread == 0.0
 
 
 def test_robust_disparity_needs_enough_matches():
-    box = np.full((20, 20), np.nan)
-    box[10, 10] = 7.0  # 1 valid of 100 central pixels
+    box = np.full((10, 10), np.nan)
+    box[5, 5] = 7.0  # 1 valid of 100 pixels
     assert sr.robust_disparity(box, CONFIG) is None
     assert (
         sr.robust_disparity(box, dataclasses.replace(CONFIG, min_valid_fraction=0.01)) is not None
@@ -221,9 +236,11 @@ def test_box_range_agrees_with_middlebury_ground_truth():
     right = cv2.cvtColor(right_rgb, cv2.COLOR_RGB2GRAY)
     config = dataclasses.replace(CONFIG, max_disparity=64)  # the scene's disparities reach 60 px
     for name, bbox in MOTORCYCLE_BOXES.items():
-        found = sr.robust_disparity(sr.box_disparities(left, right, bbox, config), config)
+        u0, v0, u1, v1 = sr.central_box(bbox, config.central_fraction, *left.shape[::-1])
+        found = sr.robust_disparity(
+            sr.box_disparities(left, right, (u0, v0, u1, v1), config), config
+        )
         assert found is not None, name
-        u0, v0, u1, v1 = bbox
         truth_box = truth[v0:v1, u0:u1].astype(float)
         truth_box[~np.isfinite(truth_box)] = np.nan
         expected = sr.robust_disparity(truth_box, config)
@@ -237,3 +254,28 @@ def test_box_range_agrees_with_middlebury_ground_truth():
             expected.disparity + MOTORCYCLE_DOFFS, MOTORCYCLE_F, MOTORCYCLE_BASELINE
         )
         assert abs(depth / true_depth - 1) <= MAX_DEPTH_ERROR, f"{name}: depth {depth:.3f} m"
+
+
+# --- Middlebury's teddy (../shared/data/real): a grid of boxes -------------------------------
+
+
+@pytest.mark.skipif(not (TEDDY / "disp2.png").exists(), reason="../shared/data/real is absent")
+def test_logged_sigma_covers_the_range_error_over_a_grid_of_teddy_boxes():
+    # Boxes of 30x40 to 150x120 px every 30 px. Before the check from the right image and the
+    # spread in the covariance (measured on the grid at 15 px): 93 % within 3 sigmas, 42 boxes
+    # over 20 % off, and 13 of 23 narrow boxes at the left border ranged (4 of them over 20 %
+    # off, up to 20 times too far). Now 98.6 %, 11, none.
+    grid = teddy_grid(CONFIG, step=30)
+    assert grid.boxes >= 250 and grid.ranged >= 0.9 * grid.boxes
+    assert grid.within_3_sigma >= 0.97 * grid.ranged
+    assert grid.confident_and_wrong <= 0.02 * grid.ranged
+    assert grid.border_boxes >= 3 and grid.border_ranged == 0
+
+
+def test_a_box_whose_object_is_left_of_the_right_image_gets_no_range():
+    # Texture at 60 px disparity; a box over columns 0-40: none of it is in the right image.
+    left, right = shifted_pair(60)
+    k = StereoIntrinsics(400, 240, 700.0, 700.0, 200.0, 120.0, 0.5)
+    assert sr.measure_box(left, right, (0.0, 60.0, 40.0, 140.0), k, CONFIG) is None
+    found = sr.measure_box(left, right, (100.0, 60.0, 140.0, 140.0), k, CONFIG)
+    assert found is not None and found.uvd[2] == pytest.approx(60.0, abs=0.25)

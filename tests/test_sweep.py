@@ -25,7 +25,6 @@ from pipeline.errors import InputError
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "configs" / "sweeps"
 SMALL_SCENARIO = SWEEPS / "small-indoor-tags.toml"
-KITTI_DIR = ROOT.parent / "shared" / "data" / "kitti-odometry-05"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 # 3 cells (the base, noise 0, misclassification 30 %) x 1 seed x 3 methods = 9 short runs.
@@ -92,7 +91,7 @@ def tiny_sweep(tmp_path_factory):
 
 
 def test_tiny_sweep_end_to_end(tiny_sweep):
-    _, out, summary = tiny_sweep
+    config, out, summary = tiny_sweep
     assert (summary.total, summary.new, summary.kept, summary.failed) == (9, 9, 0, ())
     rows = read_results(out / "results.csv")
     assert {(r.cell, r.seed, r.method) for r in rows} == TINY_RUNS
@@ -131,7 +130,11 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
         out / "tables.md",
         out / "fig_noise.png",
         out / "fig_mis.png",
+        out / "run.json",
     )
+    record = json.loads((out / "run.json").read_text())
+    assert record["config"]["scenario"] == "indoor-tags" and record["config"]["seeds"] == [0]
+    assert record["inputs"][0]["path"] == str(config)
 
 
 def test_resumption_skips_finished_runs_and_gives_the_same_tables(
@@ -351,9 +354,8 @@ def test_shipped_configs_load():
     factors = {a.factor: a.values for a in indoor.axes}
     assert min(factors["odom_noise_scale"]) == 0 and max(factors["odom_noise_scale"]) == 10
     assert min(factors["misclassification"]) == 0 and max(factors["misclassification"]) == 0.5
-    if (KITTI_DIR / "poses.txt").exists():
-        kitti = load_sweep_config(SWEEPS / "kitti05.toml")
-        assert kitti.scenario == "kitti05-cars" and not kitti.axes
+    kitti = load_sweep_config(SWEEPS / "kitti05.toml")
+    assert kitti.scenario == "kitti05-cars" and not kitti.axes
 
 
 BAD_CONFIGS = {

@@ -11,21 +11,24 @@ import socket
 import subprocess
 import sys
 import time
-from collections import defaultdict
 from pathlib import Path
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 import pytest
 
+from pipeline import settings
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.measurements import make_measurement
+from pipeline.backend.slam import BackendResult
 from pipeline.config import load_config
 from pipeline.errors import InputError
 from pipeline.geometry import rotation_from_quaternion
 from pipeline.log import (
     CompressedImage,
     Detection,
+    DetectionLog,
     Detections,
     LogMetadata,
     LogWriter,
@@ -33,59 +36,23 @@ from pipeline.log import (
     read_log,
 )
 from pipeline.log.schemas import LEFT_IMAGE
-from pipeline.replay import replay
+from pipeline.replay import ReplayResult, replay
 from pipeline.viz import draw
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
 from pipeline.viz.rerun_sink import RerunSink, viewer_url
+from tests.recordings import (
+    blueprint_views,
+    data_rows,
+    latest,
+    read_rows,
+    unfed_views,
+    unseen_entities,
+)
 from tests.synthetic import KIDNAP_POSE, Scene, kidnap_scene, square_loop, write_scene
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
 REPO = Path(__file__).resolve().parents[1]
-
-
-# ------------------------------------------------------------------------- reading it back
-def read_rows(path: Path) -> dict[str, list[dict]]:
-    """Every row of the recording by entity, in log order within each pose (statics first)."""
-    rows: dict[str, list[dict]] = defaultdict(list)
-    for chunk in rerun_chunk.RrdReader(path).stream():
-        columns = chunk.to_record_batch().to_pydict()
-        for k in range(chunk.num_rows):
-            rows[chunk.entity_path].append({name: values[k] for name, values in columns.items()})
-    for entity_rows in rows.values():
-        entity_rows.sort(key=lambda r: (r.get("pose", -1), r["rerun.controls.RowId"]))
-    return rows
-
-
-def data_rows(rows: list[dict], component: str) -> list[dict]:
-    """The rows of an entity that carry `component`, clears left out."""
-    return [r for r in rows if r.get(component) is not None]
-
-
-def latest(rows: list[dict], component: str):
-    """What a latest-at query at the end of the run gives: the last value, unless cleared."""
-    value = None
-    for r in rows:
-        if r.get("Clear:is_recursive") is not None:
-            value = None
-        if r.get(component) is not None:
-            value = r[component]
-    return value
-
-
-def blueprint_views(path: Path) -> list[tuple[str, str]]:
-    reader = rerun_chunk.RrdReader(path)
-    (store,) = reader.blueprints()
-    views = []
-    for chunk in reader.stream(store=store):
-        columns = chunk.to_record_batch().to_pydict()
-        for kind, origin in zip(
-            columns.get("ViewBlueprint:class_identifier", []),
-            columns.get("ViewBlueprint:space_origin", []),
-            strict=True,
-        ):
-            views.append((kind[0], origin[0]))
-    return views
 
 
 class Snapshot(RerunSink):
@@ -94,14 +61,21 @@ class Snapshot(RerunSink):
     landmark at that moment."""
 
     expected: dict[int, list[tuple[int, int, int]]]
+    step_ms: list[float]  # the back-end's time a keyframe
+    switched: dict[int, list[AssociationRecord]]
 
     def keyframe(self, report, backend) -> None:
         self.expected = getattr(self, "expected", {})
+        self.step_ms = getattr(self, "step_ms", [])
+        self.switched = getattr(self, "switched", {})
+        self.step_ms.append(1e3 * report.seconds)
+        self.switched[report.pose_index] = list(report.switched)
         self.expected[report.pose_index] = [
             (
                 r.measurement.detection_index,
-                max(len(c), len(r.landmark_ids)) + int(r.null_weight > 0),
+                len({*c.landmark_ids.tolist(), *r.landmark_ids}) + int(r.null_weight > 0),
                 r.landmark_id,
+                r.null_weight > 0,
             )
             for r, c in zip(report.records, report.candidates, strict=True)
         ]
@@ -128,18 +102,27 @@ def square_scene() -> Scene:
     return Scene(poses, landmarks, np.arange(len(landmarks)) % 2)
 
 
+class SquareRun(NamedTuple):
+    log: DetectionLog
+    result: ReplayResult
+    final: BackendResult
+    expected: dict[int, list[tuple[int, int, int]]]
+    rrd: Path
+    sink: Snapshot
+
+
 @pytest.fixture(scope="module")
-def square_run(tmp_path_factory):
+def square_run(tmp_path_factory) -> SquareRun:
     tmp = tmp_path_factory.mktemp("viz")
     log_path = write_scene(tmp / "square.mcap", square_scene(), seed=3)
     sink = Snapshot.open("test", rrd=tmp / "run.rrd", config=viz_config(refresh_every=7))
     result = replay(log_path, "mm-nh", tmp / "out", load_config(), sink=sink, progress=False)
-    return read_log(log_path), result, sink.final, sink.expected, tmp / "run.rrd"
+    return SquareRun(read_log(log_path), result, sink.final, sink.expected, tmp / "run.rrd", sink)
 
 
 # ----------------------------------------------------------------------------- the replay
 def test_every_pose_is_logged_once_on_both_timelines(square_run):
-    log, result, _, _, rrd = square_run
+    log, result, _, _, rrd, _ = square_run
     robot = data_rows(read_rows(rrd)[e.ROBOT], "Transform3D:translation")
     assert [r["pose"] for r in robot] == list(range(result.num_poses))
     stamps = log.pose_stamps_ns()
@@ -147,7 +130,7 @@ def test_every_pose_is_logged_once_on_both_timelines(square_run):
 
 
 def test_the_trajectory_grows_every_keyframe_and_ends_as_the_final_estimate(square_run):
-    _, result, final, _, rrd = square_run
+    _, result, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
     full = data_rows(rows[e.TRAJECTORY], "LineStrips3D:strips")
     recent = data_rows(rows[e.TRAJECTORY_RECENT], "LineStrips3D:strips")
@@ -164,24 +147,32 @@ def test_the_trajectory_grows_every_keyframe_and_ends_as_the_final_estimate(squa
 
 
 def test_every_landmark_has_its_entity_ending_at_the_final_estimate(square_run):
-    log, _, final, _, rrd = square_run
+    log, _, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
     prefix = e.LANDMARKS + "/"
     ids = {int(p[len(prefix) :]) for p in rows if p.startswith(prefix)}
-    assert ids == set(final.landmark_ids)
+    # a landmark merged into another was shown until then, and cleared
+    assert ids - set(final.landmarks.merged_into) == set(final.landmark_ids)
     names = log.metadata.class_names
     for j, value in zip(final.landmark_ids, final.landmark_values, strict=True):
         entity = rows[e.landmark_path(j)]
         np.testing.assert_allclose(latest(entity, "Points3D:positions")[0], value, atol=1e-4)
-        np.testing.assert_allclose(latest(entity, "Ellipsoids3D:centers")[0], value, atol=1e-4)
         landmark = final.landmarks.landmarks[j]
         assert latest(entity, "Points3D:labels")[0].startswith(f"L{j} {names[landmark.map_class]}")
         assert latest(entity, "Points3D:class_ids")[0] == landmark.map_class
-        assert np.all(np.array(latest(entity, "Ellipsoids3D:half_sizes")[0]) > 0)
+        assert latest(entity, "Points3D:show_labels") == [False]  # labels on hover only
+    # every landmark's ellipsoid, at the final estimate, on the uncertainty layer
+    shapes = rows[e.UNCERTAINTY]
+    labels = latest(shapes, "Ellipsoids3D:labels")
+    assert labels == [f"L{j}" for j in final.landmark_ids]
+    centres = np.array(latest(shapes, "Ellipsoids3D:centers"))
+    np.testing.assert_allclose(centres, np.array(final.landmark_values), atol=1e-4)
+    assert np.all(np.array(latest(shapes, "Ellipsoids3D:half_sizes")) > 0)
+    assert len(data_rows(shapes, "Ellipsoids3D:centers")) < len(final.poses)  # not a keyframe
 
 
 def test_each_detection_shows_every_hypothesis_and_one_winner(square_run):
-    _, _, _, expected, rrd = square_run
+    _, _, _, expected, rrd, _ = square_run
     rows = data_rows(read_rows(rrd)[e.HYPOTHESES], "LineStrips3D:strips")
     by_pose = {r["pose"]: r for r in rows}
     assert len(by_pose) == len(rows)  # one row a keyframe
@@ -193,19 +184,34 @@ def test_each_detection_shows_every_hypothesis_and_one_winner(square_run):
         row = by_pose[i]
         assert len(row["LineStrips3D:strips"]) == len(row["detection"]) == len(row["winner"])
         assert len(row["Points3D:positions"]) == len(detections)  # the measured points
-        for k, count, landmark in detections:
+        for k, count, landmark, has_null in detections:
             mine = [n for n, d in enumerate(row["detection"]) if d == k]
             assert len(mine) == count
             winners = [row["landmark"][n] for n in mine if row["winner"][n]]
             assert winners == [landmark]
-            if count > 1:  # mm-nh: a detection with candidates also has the null hypothesis
-                assert NULL in [row["landmark"][n] for n in mine]
+            # mm-nh: a detection associated among candidates also has the null hypothesis
+            assert (NULL in [row["landmark"][n] for n in mine]) == has_null
             lines += count
     assert lines > sum(len(d) for d in expected.values())  # some detections had rivals
 
 
+def test_only_the_landmarks_a_keyframe_weighs_are_labelled(square_run):
+    rrd = square_run.rrd
+    rows = read_rows(rrd)
+    hypotheses = {r["pose"]: r for r in data_rows(rows[e.HYPOTHESES], "landmark")}
+    candidates = {r["pose"]: r for r in data_rows(rows[e.CANDIDATES], "Points3D:labels")}
+    assert set(candidates) == set(hypotheses)
+    for pose, row in hypotheses.items():
+        weighed = sorted({j for j in row["landmark"] if j != NULL})
+        labels = candidates[pose]["Points3D:labels"]
+        assert [int(label.split()[0][1:]) for label in labels] == weighed  # "L57 class 0.90"
+        assert candidates[pose]["Points3D:show_labels"] == [True]
+        assert len(candidates[pose]["Ellipsoids3D:half_sizes"]) <= len(weighed)
+    assert row["Points3D:show_labels"] == [False]  # measured points: no class name each
+
+
 def test_time_series_follow_the_run(square_run):
-    log, result, final, _, rrd = square_run
+    log, result, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
     errors = data_rows(rows[e.ERROR_FINAL], "Scalars:scalars")
     assert [r["pose"] for r in errors] == list(range(result.num_poses))
@@ -217,49 +223,110 @@ def test_time_series_follow_the_run(square_run):
     assert len(online) == result.num_poses
     counts = data_rows(rows[e.LANDMARK_COUNT], "Scalars:scalars")
     assert counts[-1]["Scalars:scalars"] == [len(final.landmark_ids)]
-    assert [r["Scalars:scalars"][0] for r in counts] == sorted(
-        r["Scalars:scalars"][0] for r in counts
-    )
+    # the count falls only where landmarks were merged
+    values = np.array([r["Scalars:scalars"][0] for r in counts])
+    assert np.clip(-np.diff(values), 0, None).sum() <= final.merges
     for path in (e.NULL_RATE, e.STEP_MS, e.VIZ_MS, e.SWITCH_COUNT):
-        assert len(data_rows(rows[path], "Scalars:scalars")) == result.num_poses
+        assert [r["pose"] for r in data_rows(rows[path], "Scalars:scalars")] == list(
+            range(result.num_poses)
+        )
+
+
+def test_keyframe_times_are_plotted_as_trailing_medians(square_run):
+    rrd, step_ms = square_run.rrd, square_run.sink.step_ms
+    plotted = [r["Scalars:scalars"][0] for r in data_rows(read_rows(rrd)[e.STEP_MS], "pose")]
+    window = load_viz_config().smoothing_window
+    expected = [np.median(step_ms[max(0, i + 1 - window) : i + 1]) for i in range(len(step_ms))]
+    np.testing.assert_allclose(plotted, expected, rtol=1e-9)
+    assert np.std(np.diff(plotted)) < np.std(np.diff(step_ms))  # smoother than the raw times
+
+
+def test_the_summary_follows_the_run(square_run):
+    _, result, final, _, rrd, _ = square_run
+    rows = data_rows(read_rows(rrd)[e.SUMMARY], "TextDocument:text")
+    last = result.num_poses - 1
+    assert sorted({r["pose"] for r in rows}) == list(range(result.num_poses))
+    texts = {r["pose"]: r["TextDocument:text"][0] for r in rows}  # the last row of each pose
+    assert texts[0].startswith(f"**mm-nh**: pose 0 of {last}")
+    assert "Newest pose: " in texts[7]
+    assert texts[last].startswith(f"**mm-nh**: {result.num_poses} poses, done")
+    assert f"| {len(final.records)} | {len(final.landmark_ids)} | {final.switches} |" in texts[last]
+    t = result.metrics["translation_error_m"]
+    assert f"| translation (m) | {t['max']:.3f} |" in texts[last]
+    assert all(r["TextDocument:media_type"] == ["text/markdown"] for r in rows)
+
+
+def test_the_null_rate_starts_at_pose_zero(tmp_path):
+    log_path = write_image_log(tmp_path / "late.mcap", num_poses=5, first_detection=3)
+    sink = RerunSink.open("test", rrd=tmp_path / "late.rrd", config=viz_config(image_every=0))
+    replay(log_path, "mm-nh", tmp_path / "out", load_config(), sink=sink, progress=False)
+    rates = data_rows(read_rows(tmp_path / "late.rrd")[e.NULL_RATE], "Scalars:scalars")
+    assert [(r["pose"], r["Scalars:scalars"][0]) for r in rates] == [(i, 0.0) for i in range(5)]
 
 
 @pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")
 def test_the_recording_opens_with_its_layout(square_run):
-    *_, rrd = square_run
+    rrd = square_run.rrd
     assert len(rerun_chunk.RrdReader(rrd).store()) > 0  # complete: its footer was written
     views = blueprint_views(rrd)
     kinds = [kind for kind, _ in views]
     assert ("3D", e.WORLD) in views
     assert kinds.count("TimeSeries") == 4  # error, counts, null rate, time
     assert "TextLog" in kinds
-    assert "2D" not in kinds  # the log has no images
+    assert ("2D", e.CAMERA) not in views  # the log has no images
+    assert ("2D", e.LEGEND) in views
     rows = read_rows(rrd)
     assert rows[e.WORLD][0]["ViewCoordinates:xyz"] is not None
     assert data_rows(rows[e.GROUND_TRUTH_TRAJECTORY], "LineStrips3D:strips")
     assert data_rows(rows[e.ODOMETRY_TRAJECTORY], "LineStrips3D:strips")
 
 
-def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
-    """The kidnap scene: mm-nh first closes the loop on the lookalike, then switches the
-    detection to the null hypothesis once the other landmarks have moved the pose."""
+def kidnap_run(tmp_path: Path, **config):
     scene, _, _ = kidnap_scene(alias_seen_before=False)
     log_path = write_scene(tmp_path / "kidnap.mcap", scene, odom_noise=0.0, meas_noise=0.0)
-    sink = Snapshot.open("test", rrd=tmp_path / "kidnap.rrd")
-    result = replay(log_path, "mm-nh", tmp_path / "out", load_config(), sink=sink, progress=False)
+    sink = Snapshot.open("test", rrd=tmp_path / "kidnap.rrd", config=viz_config(**config))
+    paper = load_config(settings.config_path("paper.toml"))
+    result = replay(log_path, "mm-nh", tmp_path / "out", paper, sink=sink, progress=False)
+    return log_path, result, sink
+
+
+def event_rows(rows) -> list[tuple[int, str, str]]:
+    return [
+        (r["pose"], r["TextLog:level"][0], r["TextLog:text"][0])
+        for r in data_rows(rows[e.EVENTS], "TextLog:text")
+    ]
+
+
+def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
+    """The kidnap scene with the paper's settings: mm-nh first closes the loop on the
+    lookalike, then switches the detection to the null hypothesis once the other landmarks
+    have moved the pose."""
+    log_path, result, sink = kidnap_run(tmp_path)
     final = sink.final
     assert final.switches >= 1 and result.metrics["association"]["null"] == 1
     rows = read_rows(tmp_path / "kidnap.rrd")
     alias = f"p{KIDNAP_POSE} d0"
 
+    # a strip a switch of an earlier keyframe's detection (a keyframe's own show in its lines)
     switches = data_rows(rows[e.SWITCHES], "LineStrips3D:strips")
-    assert sum(len(r["LineStrips3D:strips"]) for r in switches) == final.switches
+    own = sum(r.measurement.pose_index == i for i, rs in sink.switched.items() for r in rs)
+    assert sum(len(r["LineStrips3D:strips"]) for r in switches) == final.switches - own
     assert any(label.startswith(f"{alias}: L") and label.endswith("→null")
                for r in switches for label in r["LineStrips3D:labels"])  # fmt: skip
     nulls = data_rows(rows[e.NULL_WINS], "Points3D:positions")
     assert [label for r in nulls for label in r["Points3D:labels"]] == [alias]
-    events = [r["TextLog:text"][0] for r in data_rows(rows[e.EVENTS], "TextLog:text")]
-    assert sum("switched" in text for text in events) == final.switches
+    # one event a switch of an earlier detection, when it happened, as the method at work
+    events = event_rows(rows)
+    changes = [(pose, level) for pose, level, text in events if " of pose " in text]
+    assert changes == [(r["pose"], "INFO") for r in switches for _ in r["LineStrips3D:labels"]]
+    (pose,) = [r["pose"] for r in nulls]
+    assert [text for p, _, text in events if p == pose and f"of pose {KIDNAP_POSE}," in text]
+    for _, _, text in events:  # never "from L25 to L25"
+        if " of pose " in text:
+            before, after = text.rsplit(", ", 1)[1].split(" → ")
+            assert before != after
+    assert all(r["Points3D:show_labels"] == [False] for r in nulls)  # the lines say it
+    assert all(level == "INFO" for _, level, _ in events)
     rejected = latest(rows[e.REJECTED], "Points3D:labels")
     assert rejected == [alias]
     # the per-keyframe marks are cleared on the next keyframe
@@ -272,8 +339,22 @@ def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
     assert NULL in [row["landmark"][n] for n in mine] and len(mine) >= 2
 
 
-def write_image_log(path: Path, num_poses: int = 3) -> Path:
-    """A hand-made log with a left image at every pose and a detection with a box."""
+def test_what_needs_a_look_is_a_warning(tmp_path):
+    """With thresholds of one, the kidnap's switch is both a large correction and an
+    unsettled detection; the null-hypothesis win stays the method at work."""
+    kidnap_run(tmp_path, warn_changes_at_once=1, warn_changes_per_detection=1)
+    events = event_rows(read_rows(tmp_path / "kidnap.rrd"))
+    warnings = [(pose, text) for pose, level, text in events if level == "WARN"]
+    changes = [(pose, text) for pose, level, text in events if " of pose " in text]
+    assert {pose for pose, _ in warnings} == {pose for pose, _ in changes}
+    assert any("earlier associations changed: a large correction" in t for _, t in warnings)
+    assert any(f"detection 0 of pose {KIDNAP_POSE} has changed 1 times" in t for _, t in warnings)
+    assert all(level == "INFO" for _, level, text in events if "null hypothesis (" in text)
+
+
+def write_image_log(path: Path, num_poses: int = 3, first_detection: int = 0) -> Path:
+    """A hand-made log with a left image at every pose and, from `first_detection` on, a
+    detection with a box."""
     metadata = LogMetadata(2, ((1.0, 0.0), (0.0, 1.0)), ("car", "sign"), "tests/test_viz.py")
     cov = tuple(np.diag([0.01, 0.01, 0.1]).ravel() ** 1)
     odom_cov = tuple(np.diag([1e-4] * 3 + [1e-3] * 3).ravel())
@@ -293,7 +374,7 @@ def write_image_log(path: Path, num_poses: int = 3) -> Path:
                 bbox=(10.0, 12.0, 30.0, 40.0),
                 truth_landmark_id=0,
             )
-            writer.write(Detections(stamp, i, (detection,)))
+            writer.write(Detections(stamp, i, (detection,) if i >= first_detection else ()))
             image = np.full((48, 64), 40 * i, dtype=np.uint8)
             ok, data = cv2.imencode(".png", image)
             assert ok
@@ -313,7 +394,7 @@ def test_images_are_shown_with_their_labelled_boxes(tmp_path):
     assert decoded.shape == (48, 64) and decoded[0, 0] == 80
     boxes = data_rows(rows[e.CAMERA_DETECTIONS], "Boxes2D:half_sizes")
     assert len(boxes) == 3
-    assert boxes[0]["Boxes2D:labels"] == ["sign 0.90 → L0"]
+    assert boxes[0]["Boxes2D:labels"] == ["sign 0.90 10.0 m → L0"]  # class, score, range, landmark
     assert ("2D", e.CAMERA) in blueprint_views(tmp_path / "images.rrd")
 
 
@@ -324,7 +405,7 @@ def test_no_images_are_read_when_none_are_wanted(tmp_path):
     replay(log_path, "known", tmp_path / "out", load_config(), sink=sink, progress=False)
     rows = read_rows(tmp_path / "none.rrd")
     assert e.CAMERA not in rows
-    assert "2D" not in [kind for kind, _ in blueprint_views(tmp_path / "none.rrd")]
+    assert ("2D", e.CAMERA) not in blueprint_views(tmp_path / "none.rrd")
 
 
 def test_frontend_keyframes_are_shown(tmp_path):
@@ -348,12 +429,18 @@ def test_frontend_keyframes_are_shown(tmp_path):
     tags = {m.pose_index: len(m.detections) for m in log.detections}
     assert sum(tags.values()) > 0
     outlines = {r["pose"]: r for r in data_rows(rows[e.CAMERA_TAGS], "LineStrips2D:strips")}
-    for pose, count in tags.items():
+    for message in log.detections:
+        count = len(message.detections)
         if count:
-            assert len(outlines[pose]["LineStrips2D:strips"]) == count
-            assert all(len(s) == 5 for s in outlines[pose]["LineStrips2D:strips"])  # closed
-            assert all(label.startswith("tag ") for label in outlines[pose]["LineStrips2D:labels"])
+            row = outlines[message.pose_index]
+            assert len(row["LineStrips2D:strips"]) == count
+            assert all(len(s) == 5 for s in row["LineStrips2D:strips"])  # closed
+            # each outline with its detection's score and range ("tag 12 0.87 4.3 m")
+            said = sorted(label.split(" ", 2)[2] for label in row["LineStrips2D:labels"])
+            assert said == sorted(f"{d.score:.2f} {d.range:.1f} m" for d in message.detections)
     assert ("2D", e.CAMERA) in blueprint_views(tmp_path / "frontend.rrd")
+    assert unfed_views(tmp_path / "frontend.rrd") == []
+    assert unseen_entities(tmp_path / "frontend.rrd") == []
 
 
 # ----------------------------------------------------------------------- cost, bad input
@@ -580,7 +667,8 @@ def test_hypotheses_of_each_method():
     # a new landmark: no candidates
     (new,) = draw.detection_hypotheses(_record([12], [1.0]), Candidates.none(), created=True)
     assert new.new_landmark and new.winner and new.detection_index == 2
-    assert draw.hypothesis_label(new) == "d2→L12 (new) 1.00"
+    assert draw.hypothesis_label(new) == "new"
+    assert [draw.hypothesis_label(h) for h in mm] == ["0.50", "0.40", "null 0.10"]
     assert draw.hypothesis_style(new)[0] == draw.NEW_LANDMARK_RGB
     assert draw.hypothesis_style(mm[2])[0] == draw.NULL_WINNER_RGB
     assert draw.hypothesis_style(mm[0])[1] < draw.hypothesis_style(mm[2])[1]
@@ -599,6 +687,8 @@ def test_viz_config_defaults_and_overrides(tmp_path):
         ("[viz]\nrefresh_every = 2.5\n", "must be int"),
         ("[viz]\nrefresh_every = 0\n", "refresh_every"),
         ("[viz]\nkeyframe_marginals = 1\n", "must be bool"),
+        ("[viz]\nsmoothing_window = 0\n", "'viz.smoothing_window' must be >= 1"),
+        ("[viz]\nwarn_changes_at_once = -1\n", "'viz.warn_changes_at_once' must be >= 1"),
         ("[other]\n", "unknown key 'other'"),
     ]:
         override.write_text(text)

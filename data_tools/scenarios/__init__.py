@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from data_tools.scenarios import indoor_tags, kitti05_cars
+from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_park
 from data_tools.scenarios.common import (
     SimulationOptions,
     SimulationSummary,
@@ -18,7 +18,12 @@ from data_tools.scenarios.common import (
 )
 from pipeline.errors import InputError
 
-_MODULES = {indoor_tags.NAME: indoor_tags, kitti05_cars.NAME: kitti05_cars}
+_MODULES = {
+    indoor_tags.NAME: indoor_tags,
+    kitti05_cars.NAME: kitti05_cars,
+    city_grid.NAME: city_grid,
+    planar_park.NAME: planar_park,
+}
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
 # Times the paper's added odometry noise, at most: the paper sweeps 0..10; far beyond, the
 # drawn steps overflow.
@@ -43,6 +48,7 @@ def simulate(
     num_classes: int | None = None,
     true_covariance: bool = False,
     config_path: Path | None = None,
+    foxglove: bool = True,
 ) -> SimulationSummary:
     """Write the log of `scenario` to `out` (atomically) and return what it holds.
 
@@ -50,7 +56,8 @@ def simulate(
     `odom_noise_scale` multiplies the paper's added odometry noise (default: the config's);
     `misclassification` is the detector's alpha (1 - alpha on the confusion matrix's diagonal);
     `num_classes` defaults to the config's; `true_covariance` writes the odometry covariance
-    of the noise actually drawn instead of the calibrated model's.
+    of the noise actually drawn instead of the calibrated model's; `foxglove` adds Foxglove's
+    well-known messages beside the contract's.
     """
     if scenario not in _MODULES:
         raise InputError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
@@ -80,5 +87,5 @@ def simulate(
     )
     run = module.simulate(config, options, config_path)
     out = Path(out)
-    write_log(out, run)
+    write_log(out, run, foxglove)
     return summarise(scenario, out, options, run)

@@ -120,7 +120,7 @@ def source_text(scenario: str, options: SimulationOptions, config: Path | None) 
     return text
 
 
-def write_log(path: Path, run: SimulatedRun) -> None:
+def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> None:
     """Write `run` as a contract-v1 log, messages in time order.
 
     At the first stamp: ground-truth landmarks (and calibration); then for every pose k, at its
@@ -132,7 +132,7 @@ def write_log(path: Path, run: SimulatedRun) -> None:
     odom_quaternions = rotation_to_quaternion(run.odometry[:, :3, :3])
     covariance = floats(run.odometry_covariance)
     stamps = [int(t) for t in run.times_ns]
-    with LogWriter(path, run.metadata) as writer:
+    with LogWriter(path, run.metadata, foxglove=foxglove) as writer:
         writer.write(GroundTruthLandmarks(stamp_ns=stamps[0], landmarks=tuple(run.landmarks)))
         if run.calibration is not None:
             writer.write(run.calibration)

@@ -36,7 +36,6 @@ from data_tools.scenarios.geometry import (
     relative_poses,
     rotation_to_quaternion,
     se3_exp,
-    yaw_rotation,
 )
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
@@ -47,6 +46,7 @@ from data_tools.scenarios.noise import (
     random_streams,
     sample_reported_classes,
 )
+from data_tools.scenarios.routes import RouteConfig, drive, junction_route
 from pipeline.errors import InputError
 from pipeline.log import Detection, GroundTruthLandmark, RelativePose
 
@@ -56,7 +56,6 @@ NAME = "indoor-tags"
 
 # Points tested along each line of sight, stopping short of the tag on the wall itself.
 LINE_OF_SIGHT_SAMPLES = np.linspace(0.0, 0.97, 48)
-DENSE_STEP_M = 0.05  # resolution of the route before smoothing
 
 
 @dataclass(frozen=True)
@@ -64,16 +63,6 @@ class FloorConfig:
     corridor_x_m: tuple[float, ...]
     corridor_y_m: tuple[float, ...]
     corridor_width_m: float
-
-
-@dataclass(frozen=True)
-class RouteConfig:
-    length_m: float
-    speed_mps: float
-    keyframe_period_s: float
-    corner_smoothing_m: float
-    wander_amplitude_m: float
-    wander_wavelength_m: float
 
 
 @dataclass(frozen=True)
@@ -209,78 +198,6 @@ def free_space_of(corridors: list[Corridor], width: float) -> np.ndarray:
     return np.array(rects)
 
 
-def junction_route(floor: FloorConfig, length: float, rng: np.random.Generator) -> np.ndarray:
-    """Junctions visited, (K, 2), until the route is at least `length` long.
-
-    At each junction the robot takes one of the corridors it has driven least (never straight
-    back), so all corridors are covered and then driven again: the loops of the run.
-    """
-    xs, ys = floor.corridor_x_m, floor.corridor_y_m
-    node, previous = (0, 0), None
-    driven: dict[frozenset, int] = {}
-    route = [node]
-    total = 0.0
-    while total < length:
-        i, j = node
-        neighbours = [
-            (a, b)
-            for a, b in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))
-            if 0 <= a < len(xs) and 0 <= b < len(ys) and (a, b) != previous
-        ]
-        counts = [driven.get(frozenset((node, n)), 0) for n in neighbours]
-        least = [n for n, c in zip(neighbours, counts, strict=True) if c == min(counts)]
-        step = least[int(rng.integers(len(least)))]
-        driven[frozenset((node, step))] = driven.get(frozenset((node, step)), 0) + 1
-        total += abs(xs[step[0]] - xs[i]) + abs(ys[step[1]] - ys[j])
-        previous, node = node, step
-        route.append(node)
-    return np.array([[xs[i], ys[j]] for i, j in route])
-
-
-def resample_polyline(vertices: np.ndarray, step: float) -> np.ndarray:
-    """Points every `step` metres along a polyline."""
-    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(vertices, axis=0), axis=1))])
-    grid = np.arange(0.0, s[-1], step)
-    return np.stack([np.interp(grid, s, vertices[:, k]) for k in range(vertices.shape[1])], -1)
-
-
-def smooth_path(points: np.ndarray, window: int) -> np.ndarray:
-    """Moving average over `window` points: rounds the corners as a driven robot would."""
-    if window <= 1:
-        return points
-    kernel = np.ones(window) / window
-    padded = np.pad(points, ((window // 2, window - 1 - window // 2), (0, 0)), mode="edge")
-    return np.stack([np.convolve(padded[:, k], kernel, mode="valid") for k in range(2)], -1)
-
-
-def arc_length(points: np.ndarray) -> np.ndarray:
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
-
-
-def drive(vertices: np.ndarray, route: RouteConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Keyframe times (ns) and planar body poses (N, 4, 4) along the junction route."""
-    dense = resample_polyline(vertices, DENSE_STEP_M)
-    dense = smooth_path(dense, round(route.corner_smoothing_m / DENSE_STEP_M))
-    tangent = np.gradient(dense, axis=0)
-    tangent /= np.linalg.norm(tangent, axis=1, keepdims=True)
-    s = arc_length(dense)
-    weave = route.wander_amplitude_m * np.sin(2 * np.pi * s / route.wander_wavelength_m)
-    dense = dense + weave[:, None] * np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
-    s = arc_length(dense)
-    heading = np.unwrap(np.arctan2(*np.gradient(dense, axis=0)[:, ::-1].T))
-    step = route.speed_mps * route.keyframe_period_s
-    if s[-1] < route.length_m:
-        raise InputError(f"{NAME} config: the route is shorter than route.length_m")
-    count = math.floor(route.length_m / step + 1e-9) + 1
-    s_key = np.arange(count) * step
-    xy = np.stack([np.interp(s_key, s, dense[:, 0]), np.interp(s_key, s, dense[:, 1])], -1)
-    yaw = np.interp(s_key, s, heading)
-    translation = np.concatenate([xy, np.zeros((count, 1))], axis=1)
-    poses = pose_from_rotation_translation(yaw_rotation(yaw), translation)
-    times_ns = np.round(np.arange(count) * route.keyframe_period_s * 1e9).astype(np.int64)
-    return times_ns, poses
-
-
 def place_tags(
     corridors: list[Corridor], width: float, tags: TagConfig, rng: np.random.Generator
 ) -> np.ndarray:
@@ -316,8 +233,10 @@ def build_world(config: IndoorTagsConfig) -> IndoorWorld:
     rng = np.random.default_rng(config.world_seed)
     corridors = corridors_of(config.floor)
     # Longer than asked: rounding the corners shortens the route.
-    vertices = junction_route(config.floor, 1.1 * config.route.length_m + 50.0, rng)
-    times_ns, poses = drive(vertices, config.route)
+    floor = config.floor
+    length = 1.1 * config.route.length_m + 50.0
+    vertices = junction_route(floor.corridor_x_m, floor.corridor_y_m, length, rng)
+    times_ns, poses = drive(vertices, config.route, NAME)
     tag_poses = place_tags(corridors, config.floor.corridor_width_m, config.tags, rng)
     free_space = free_space_of(corridors, config.floor.corridor_width_m)
     if not in_free_space(poses[:, :2, 3], free_space).all():

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from data_tools.data import KITTI05_DIR
 from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
@@ -68,7 +69,7 @@ _NEAR_PLANE_M = 0.1  # box corners closer than this to the image plane are not p
 
 @dataclass(frozen=True)
 class SequenceConfig:
-    data_dir: Path
+    data_dir: str  # "": KITTI 05 as shipped (data_tools/data); else a folder like it
     camera_height_m: float
 
 
@@ -181,14 +182,18 @@ class Kitti05World:
     car_sizes: np.ndarray  # (M, 3) length, width, height
 
 
+def sequence_dir(sequence: SequenceConfig) -> Path:
+    """The folder of poses.txt and times.txt: package data unless the config names another."""
+    return Path(sequence.data_dir) if sequence.data_dir else KITTI05_DIR
+
+
 def read_sequence(sequence: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
     """Times (ns) and body poses of the KITTI sequence (poses.txt, times.txt)."""
-    camera_poses = read_poses(sequence.data_dir / "poses.txt")
-    times = read_times(sequence.data_dir / "times.txt")
+    folder = sequence_dir(sequence)
+    camera_poses = read_poses(folder / "poses.txt")
+    times = read_times(folder / "times.txt")
     if len(times) != len(camera_poses):
-        raise InputError(
-            f"sequence {sequence.data_dir}: {len(camera_poses)} poses but {len(times)} times"
-        )
+        raise InputError(f"sequence {folder}: {len(camera_poses)} poses but {len(times)} times")
     times_ns = np.round((times - times[0]) * 1e9).astype(np.int64)
     # KITTI's rotations are printed to 7 digits: make them exact, as the truth written will be.
     return times_ns, orthonormalise(camera_poses_to_body(camera_poses))

@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -32,8 +31,10 @@ from data_tools.sweep.work import (
     RunTask,
     finished_metrics,
 )
+from pipeline import provenance
 from pipeline.errors import InputError
 from pipeline.outputs import METRICS, metrics_json, write_outputs, write_text
+from pipeline.progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -135,21 +136,16 @@ def record(out: Path, outcome: RunOutcome) -> None:
 
 
 class _Progress:
-    """A tqdm bar when stderr is a terminal, else a log line per run."""
+    """The sweep's progress (`pipeline.progress`), and a log line per run."""
 
     def __init__(self, total: int, enabled: bool):
-        self.total, self.done, self.bar = total, 0, None
-        if enabled and total and sys.stderr.isatty():
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=total, desc="sweep", unit="run")
+        self.total, self.done = total, 0
+        self.shown = Progress(total, "sweep", "run", enabled=enabled and total > 0)
 
     def update(self, outcome: RunOutcome) -> None:
         self.done += 1
         status = "failed: " + (outcome.error or "") if outcome.metrics is None else "done"
-        if self.bar is not None:
-            self.bar.set_postfix_str(outcome.key.label(), refresh=False)
-            self.bar.update()
+        self.shown.update(note=outcome.key.label())
         logger.info(
             "[%d/%d] %s %s (%.1f s)",
             self.done,
@@ -160,8 +156,7 @@ class _Progress:
         )
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
+        self.shown.close()
 
 
 @contextmanager
@@ -230,7 +225,7 @@ def run_sweep(
     `workers` local processes (default: the cores), or the workers of the Dask scheduler at
     `dask_address`. Local workers are spawned, so a script that calls this with more than one
     worker needs the usual `if __name__ == "__main__":` guard."""
-    start = time.perf_counter()
+    start, started = time.perf_counter(), provenance.utc_now()
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise InputError(f"--workers must be at least 1, got {workers!r}")
     if workers is not None and dask_address is not None:
@@ -259,6 +254,9 @@ def run_sweep(
     rows = [row_from_metrics(key, metrics[key]) for key in keys if key in metrics]
     write_results(out / RESULTS_NAME, rows)
     files = [out / RESULTS_NAME, *write_report(out, config, rows, code_versions)]
+    record = provenance.run_json(config, [config_path], started, time.perf_counter() - start)
+    write_text(out / provenance.RUN_RECORD, record)
+    files.append(out / provenance.RUN_RECORD)
     return SweepSummary(
         name=config.name,
         out=out,

@@ -120,6 +120,7 @@ def ensure_log(task: RunTask) -> None:
                 num_classes=task.num_classes,
                 true_covariance=task.true_covariance,
                 config_path=task.scenario_config,
+                foxglove=False,  # only replayed
             )
             digest = file_digest(task.log_path)
             write_text(digest_path(task.log_path), f"{digest}  {task.log_path.name}\n")

@@ -9,7 +9,7 @@ odometry, which is exact to first order: x_t = x_{t-1} * u gives dx_t = Ad(u^-1)
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -48,21 +48,53 @@ class PosePrediction:
 
 @dataclass(frozen=True)
 class Candidates:
-    """The landmarks that passed the gate, with their association weights (sum 1)."""
+    """The landmarks that passed the gate (chi-square on the Mahalanobis
+    distance in R's metric), with their association weights (sum 1). `fit_sq` is each one's
+    |h(x, l) - z|^2 in the measurement's own metric (Gamma) at the predicted pose: what a
+    max-mixture factor sees at its first linearisation."""
 
     landmark_ids: np.ndarray
     weights: np.ndarray
     semantic: np.ndarray  # P(reported class | landmark)
-    mahalanobis_sq: np.ndarray  # NaN where not needed: a sure, lone candidate
+    mahalanobis_sq: np.ndarray  # in R's metric; NaN where not needed: a sure, lone candidate
     searched: int  # how many landmarks the spatial search returned
+    fit_sq: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # For associating the keyframe's detections jointly (`joint_association.py`), per
+    # candidate: h(x_pred, l) - z and its Jacobians in the new pose and in the landmark.
+    residuals: np.ndarray | None = None
+    pose_jacobians: np.ndarray | None = None
+    landmark_jacobians: np.ndarray | None = None
 
     @staticmethod
     def none(searched: int = 0) -> Candidates:
         empty = np.zeros(0)
-        return Candidates(np.zeros(0, dtype=int), empty, empty, empty, searched)
+        return Candidates(np.zeros(0, dtype=int), empty, empty, empty, searched, empty)
 
     def __len__(self) -> int:
         return len(self.landmark_ids)
+
+
+@dataclass(frozen=True)
+class KeyframeCovariance:
+    """Joint covariance of the new pose (first 6 rows) and the landmarks of the keyframe's
+    candidates (`offsets[j]`: first row of landmark j's block)."""
+
+    matrix: np.ndarray
+    offsets: dict[int, int]
+
+
+@dataclass
+class _Screened:
+    """One detection after the cheap screening: what the joint marginals are needed for."""
+
+    ids: np.ndarray  # landmarks that may pass the gate
+    semantic: np.ndarray
+    residual: np.ndarray
+    H_x: np.ndarray
+    H_l: np.ndarray
+    pose_part: np.ndarray
+    searched: int
+    sure: Candidates | None = None  # decided without joint marginals
 
 
 def search_radius(
@@ -94,16 +126,30 @@ class CandidateScorer:
         landmarks: LandmarkMap,
         confusion: np.ndarray,
         config: AssociationConfig,
+        keep_joint: bool = False,
     ):
+        """`keep_joint`: keep the keyframe's whole joint covariance (`last_joint`) and every
+        candidate's residual and Jacobians, for associating the keyframe jointly; the gate is
+        then the wider `joint_candidate_confidence`, since the joint test decides."""
         self.solver = solver
         self.landmarks = landmarks
         self.confusion = confusion
         self.config = config
+        self.keep_joint = keep_joint
+        self.confidence = (
+            config.joint_candidate_confidence if keep_joint else config.chi2_confidence
+        )
+        self.last_joint: KeyframeCovariance | None = None
 
     def score(
         self, prediction: PosePrediction, measurements: list[Measurement]
     ) -> list[Candidates]:
-        """Candidates of every detection of one keyframe."""
+        """Candidates of every detection of one keyframe.
+
+        Cheap bounds first screen each detection's nearby landmarks; the joint marginals of the
+        anchor pose and every landmark still in play, for all the keyframe's detections at
+        once, come from one iSAM2 query (one walk of the Bayes tree instead of one a pair)."""
+        self.last_joint = None
         if not measurements or len(self.landmarks) == 0:
             return [Candidates.none() for _ in measurements]
         pose_cov = prediction.covariance(self.solver.marginal_covariance(prediction.anchor_key))
@@ -115,10 +161,15 @@ class CandidateScorer:
             nearby.append(self.landmarks.near(m.kind, center, radius))
         estimates = EstimateCache(self.solver, self.landmarks.is_pose)
         estimates.fetch([], set().union(*nearby))
-        joints: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # shared by the keyframe's detections
-        return [
-            self._score_one(prediction, pose_cov, m, ids, estimates, joints)
+        screened = [
+            self._screen(prediction, pose_cov, m, ids, estimates)
             for m, ids in zip(measurements, nearby, strict=True)
+        ]
+        wanted = sorted({int(j) for s in screened if s.sure is None for j in s.ids})
+        joints = self._joints(prediction, wanted)
+        return [
+            s.sure if s.sure is not None else self._finish(m, s, joints)
+            for m, s in zip(measurements, screened, strict=True)
         ]
 
     def _landmark_covariance_bound(self, landmark_id: int) -> np.ndarray:
@@ -130,35 +181,62 @@ class CandidateScorer:
             landmark.covariance_bound = self.solver.marginal_covariance(L(landmark_id))
         return landmark.covariance_bound
 
-    def _joint(self, prediction: PosePrediction, landmark_id: int, joints: dict):
-        """(Sigma_xl, Sigma_ll) of the new pose and the landmark, from iSAM2's joint marginal of
-        the anchor pose and the landmark. Pairwise: GTSAM answers two keys from the Bayes tree,
-        but more than two by eliminating the whole graph. Without joint marginals (config), the
-        landmark's marginal and no cross-covariance."""
-        if landmark_id in joints:
-            return joints[landmark_id]
-        key = L(landmark_id)
-        if self.config.joint_marginals:
-            joint = self.solver.joint_covariance([prediction.anchor_key, key])
-            sigma_xl, sigma_ll = prediction.transport @ joint[:6, 6:], joint[6:, 6:]
+    def _joints(
+        self, prediction: PosePrediction, landmark_ids: list[int]
+    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """(Sigma_xl, Sigma_ll) of the new pose and each landmark, from iSAM2's joint marginal
+        of the anchor pose and the landmarks (one query); without joint marginals (config),
+        each landmark's marginal and no cross-covariance."""
+        if not landmark_ids:
+            return {}
+        out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        if self.config.joint_marginals or self.keep_joint:
+            keys = [L(j) for j in landmark_ids]
+            joint = self.solver.joint_covariance([prediction.anchor_key, *keys])
+            if self.keep_joint:
+                self.last_joint = self._transported(prediction, joint, landmark_ids)
+            offset = 6
+            for j in landmark_ids:
+                dim = 6 if self.landmarks.landmarks[j].kind is LandmarkKind.POSE else 3
+                block = slice(offset, offset + dim)
+                out[j] = (prediction.transport @ joint[:6, block], joint[block, block])
+                offset += dim
         else:
-            sigma_ll = self.solver.marginal_covariance(key)
-            sigma_xl = np.zeros((6, sigma_ll.shape[0]))
-        self.landmarks.landmarks[landmark_id].covariance_bound = sigma_ll
-        joints[landmark_id] = (sigma_xl, sigma_ll)
-        return joints[landmark_id]
+            for j in landmark_ids:
+                sigma_ll = self.solver.marginal_covariance(L(j))
+                out[j] = (np.zeros((6, sigma_ll.shape[0])), sigma_ll)
+        for j, (_, sigma_ll) in out.items():
+            self.landmarks.landmarks[j].covariance_bound = sigma_ll
+        return out
 
-    def _score_one(
+    def _transported(
+        self, prediction: PosePrediction, joint: np.ndarray, landmark_ids: list[int]
+    ) -> KeyframeCovariance:
+        """The anchor pose's joint with the landmarks, carried over to the new pose."""
+        A = prediction.transport
+        out = joint.copy()
+        out[:6, :6] = prediction.covariance(joint[:6, :6])
+        out[:6, 6:] = A @ joint[:6, 6:]
+        out[6:, :6] = out[:6, 6:].T
+        offsets, row = {}, 6
+        for j in landmark_ids:
+            offsets[j] = row
+            row += 6 if self.landmarks.landmarks[j].kind is LandmarkKind.POSE else 3
+        return KeyframeCovariance(out, offsets)
+
+    def _screen(
         self,
         prediction: PosePrediction,
         pose_cov: np.ndarray,
         m: Measurement,
         ids: list[int],
         estimates: EstimateCache,
-        joints: dict,
-    ) -> Candidates:
+    ) -> _Screened:
+        empty = np.zeros(0)
+        nothing = _Screened(np.zeros(0, dtype=int), empty, empty, empty, empty, empty, len(ids))
         if not ids:
-            return Candidates.none()
+            nothing.sure = Candidates.none()
+            return nothing
         searched = len(ids)
         column = self.confusion[:, m.detection.class_id]
         semantic = np.array([column @ self.landmarks.landmarks[j].class_probabilities for j in ids])
@@ -166,8 +244,9 @@ class CandidateScorer:
         ids = [j for j, s in zip(ids, semantic, strict=True) if s > 0.0]
         semantic = semantic[semantic > 0.0]
         if not ids:
-            return Candidates.none(searched)
-        gate = assoc.chi2_gate(m.dim, self.config.chi2_confidence)
+            nothing.sure = Candidates.none(searched)
+            return nothing
+        gate = assoc.chi2_gate(m.dim, self.confidence)
         residual, H_x, H_l = self._residuals(m, prediction, ids, estimates)
         pose_part = H_x @ pose_cov @ np.swapaxes(H_x, 1, 2)
         # First, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma,
@@ -177,43 +256,57 @@ class CandidateScorer:
         landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
         bound = 2.0 * (pose_part + landmark_part) + m.covariance
         plausible = np.flatnonzero(assoc.mahalanobis_squared_batch(residual, bound) <= gate)
-        if len(plausible) == 0:
-            return Candidates.none(searched)
-        if len(plausible) == 1:
-            k = plausible[0]
-            if assoc.mahalanobis_squared(residual[k], m.covariance) <= gate:
-                # Passes even under the smaller R and has no rival: weight 1, whatever R is.
-                return Candidates(
-                    np.array([ids[k]]), np.ones(1), semantic[[k]], np.full(1, np.nan), searched
-                )
-
-        sigmas = [self._joint(prediction, ids[k], joints) for k in plausible]
-        sigma_xl = np.stack([s[0] for s in sigmas])
-        sigma_ll = np.stack([s[1] for s in sigmas])
-        hx, hl = H_x[plausible], H_l[plausible]
-        cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
-        R = (
-            pose_part[plausible]
-            + cross
-            + np.swapaxes(cross, 1, 2)
-            + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
-            + m.covariance
+        out = _Screened(
+            np.array(ids)[plausible],
+            semantic[plausible],
+            residual[plausible],
+            H_x[plausible],
+            H_l[plausible],
+            pose_part[plausible],
+            searched,
         )
+        if len(plausible) == 0:
+            out.sure = Candidates.none(searched)
+        elif len(plausible) == 1 and not self.keep_joint:
+            fit = assoc.mahalanobis_squared(out.residual[0], m.covariance)
+            if fit <= gate:
+                # Passes even under the smaller R and has no rival: weight 1, whatever R is.
+                out.sure = Candidates(
+                    out.ids, np.ones(1), out.semantic, np.full(1, np.nan), searched, np.array([fit])
+                )
+        return out
+
+    def _finish(
+        self, m: Measurement, s: _Screened, joints: dict[int, tuple[np.ndarray, np.ndarray]]
+    ) -> Candidates:
+        """Gate and weigh a screened detection's landmarks with R from the joint marginals."""
+        sigma_xl = np.stack([joints[int(j)][0] for j in s.ids])
+        sigma_ll = np.stack([joints[int(j)][1] for j in s.ids])
+        hx, hl = s.H_x, s.H_l
+        cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
+        R = s.pose_part + cross + np.swapaxes(cross, 1, 2) + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
+        R = R + m.covariance
         R = 0.5 * (R + np.swapaxes(R, 1, 2))
-        d2 = assoc.mahalanobis_squared_batch(residual[plausible], R)
-        passed = d2 <= gate
+        d2 = assoc.mahalanobis_squared_batch(s.residual, R)
+        passed = d2 <= assoc.chi2_gate(m.dim, self.confidence)
         if not np.any(passed):
-            return Candidates.none(searched)
-        chosen = plausible[passed]
-        log_geo = assoc.gaussian_log_density_batch(residual[chosen], R[passed])
-        weights = assoc.association_weights(log_geo, semantic[chosen])
+            return Candidates.none(s.searched)
+        log_geo = assoc.gaussian_log_density_batch(s.residual[passed], R[passed])
+        weights = assoc.association_weights(log_geo, s.semantic[passed])
         keep = weights >= self.config.min_weight
+        fit = np.einsum(
+            "ki,ij,kj->k", s.residual[passed][keep], m.information, s.residual[passed][keep]
+        )
         return Candidates(
-            landmark_ids=np.array(ids)[chosen][keep],
+            landmark_ids=s.ids[passed][keep],
             weights=weights[keep] / weights[keep].sum(),
-            semantic=semantic[chosen][keep],
+            semantic=s.semantic[passed][keep],
             mahalanobis_sq=d2[passed][keep],
-            searched=searched,
+            searched=s.searched,
+            fit_sq=fit,
+            residuals=s.residual[passed][keep] if self.keep_joint else None,
+            pose_jacobians=hx[passed][keep] if self.keep_joint else None,
+            landmark_jacobians=hl[passed][keep] if self.keep_joint else None,
         )
 
     @staticmethod

@@ -25,38 +25,58 @@ def odometry_factor(from_key: int, to_key: int, odometry: Odometry) -> gtsam.Bet
     )
 
 
-def bearing_elevation_to_direction(bearing: float, elevation: float) -> np.ndarray:
-    ce = np.cos(elevation)
-    return np.array([ce * np.cos(bearing), ce * np.sin(bearing), np.sin(elevation)])
+def direction_frame(bearing: float, elevation: float) -> np.ndarray:
+    """Rotation whose columns are (left, up, along) the direction of (bearing, elevation):
+    the frame of a virtual camera looking along the detection."""
+    cb, sb, ce, se = np.cos(bearing), np.sin(bearing), np.cos(elevation), np.sin(elevation)
+    along = np.array([ce * cb, ce * sb, se])
+    left = np.array([-sb, cb, 0.0])
+    up = np.array([-se * cb, -se * sb, ce])
+    return np.column_stack([left, up, along])
 
 
-def unit3_range_covariance(bearing: float, elevation: float, covariance: np.ndarray) -> np.ndarray:
-    """(bearing, elevation, range) covariance in the error coordinates of GTSAM's bearing-range
-    factor: the 2-D tangent plane of the direction, then range.
+def virtual_stereo_covariance(
+    elevation: float, range_m: float, covariance: np.ndarray
+) -> np.ndarray:
+    """Covariance of (u_left, u_right, v) of a virtual stereo camera (focal length 1, baseline
+    `range_m`, looking along the detection) for a (bearing, elevation, range) covariance.
 
-    GTSAM expresses the direction error in the tangent basis of the *predicted* direction, and
-    `Unit3`'s basis turns abruptly where two components of the direction swap magnitude. So
-    only a direction noise that is the same in every tangent direction weighs errors the same
-    wherever the estimate is: the tangent block is made isotropic with its larger variance (a
-    little less information than the detection carries, never more), and the direction-range
-    correlation is left out.
-    """
-    # On the unit sphere a bearing change moves the direction by cos(elevation) times as much.
-    scale = np.diag([np.cos(elevation), 1.0])
-    angular = np.asarray(covariance, dtype=float)[:2, :2]
-    variance = float(np.linalg.eigvalsh(scale @ angular @ scale)[-1])
-    return np.diag([variance, variance, float(covariance[2, 2])])
+    At the detection u_left = v = 0 and u_right = -1. To first order, u_left moves by the
+    angle along `left` (cos(elevation) times the bearing's), v by the elevation's, and
+    u_right = u_left + range_change / range: the same Gaussian, correlations included, in
+    coordinates whose frame does not depend on the estimate."""
+    J = np.array(
+        [
+            [np.cos(elevation), 0.0, 0.0],
+            [np.cos(elevation), 0.0, 1.0 / range_m],
+            [0.0, 1.0, 0.0],
+        ]
+    )
+    C = J @ np.asarray(covariance, dtype=float) @ J.T
+    return 0.5 * (C + C.T)
 
 
 def point_measurement_factor(
     pose_key: int, landmark_key: int, detection: Detection, information_scale: float = 1.0
-) -> gtsam.BearingRangeFactor3D:
-    """Bearing/elevation/range factor; `information_scale` < 1 weakens it (GPDA's weights)."""
+) -> gtsam.GenericStereoFactor3D:
+    """Bearing/elevation/range as a virtual stereo measurement; `information_scale` < 1 weakens
+    it (GPDA's weights).
+
+    GTSAM's bearing-range factor measures the direction error in the tangent basis of the
+    *predicted* direction (Unit3), which turns abruptly where two of its components swap
+    magnitude: a direction noise that is not the same in every tangent direction (a planar
+    sensor's elevation, far tighter than its bearing) would be weighed in the wrong axes there.
+    A stereo camera looking along the measured direction has a fixed frame instead, so the
+    detection's covariance, anisotropic and correlated, is kept whole."""
     covariance = np.reshape(detection.covariance, (3, 3))
-    mapped = unit3_range_covariance(detection.bearing, detection.elevation, covariance)
+    mapped = virtual_stereo_covariance(detection.elevation, detection.range, covariance)
     noise = gtsam.noiseModel.Gaussian.Covariance(mapped / information_scale)
-    direction = gtsam.Unit3(bearing_elevation_to_direction(detection.bearing, detection.elevation))
-    return gtsam.BearingRangeFactor3D(pose_key, landmark_key, direction, detection.range, noise)
+    camera = gtsam.Cal3_S2Stereo(1.0, 1.0, 0.0, 0.0, 0.0, detection.range)
+    frame = gtsam.Pose3(
+        gtsam.Rot3(direction_frame(detection.bearing, detection.elevation)), np.zeros(3)
+    )
+    measured = gtsam.StereoPoint2(0.0, -1.0, 0.0)
+    return gtsam.GenericStereoFactor3D(measured, noise, pose_key, landmark_key, camera, frame)
 
 
 def pose_measurement_factor(

@@ -62,6 +62,13 @@ class SpatialHash:
             self._where[item] = cell
         self.positions[item] = position
 
+    def remove(self, item: int) -> None:
+        cell = self._where.pop(item)
+        self._cells[cell].discard(item)
+        if not self._cells[cell]:
+            del self._cells[cell]
+        del self.positions[item]
+
     def query(self, center: np.ndarray, radius: float) -> list[int]:
         """Ids within `radius` of `center`, in increasing order (deterministic)."""
         center = np.asarray(center, dtype=float)
@@ -102,6 +109,17 @@ class LandmarkMap:
     def __post_init__(self) -> None:
         self._index = {kind: SpatialHash(self.cell_size) for kind in LandmarkKind}
         self._is_pose: list[bool] = []
+        self.merged_into: dict[int, int] = {}  # duplicate id -> the landmark it was merged into
+
+    @property
+    def next_id(self) -> int:
+        return len(self._is_pose)
+
+    def resolve(self, landmark_id: int) -> int:
+        """The landmark that stands for `landmark_id` now (itself unless merged)."""
+        while landmark_id in self.merged_into:
+            landmark_id = self.merged_into[landmark_id]
+        return landmark_id
 
     @property
     def is_pose(self) -> np.ndarray:
@@ -113,7 +131,7 @@ class LandmarkMap:
 
     def create(self, kind: LandmarkKind, position: np.ndarray) -> Landmark:
         landmark = Landmark(
-            id=len(self.landmarks),
+            id=len(self._is_pose),  # ids are never reused, also after a merge
             kind=kind,
             class_probabilities=np.full(self.num_classes, 1.0 / self.num_classes),
         )
@@ -121,6 +139,12 @@ class LandmarkMap:
         self._is_pose.append(kind is LandmarkKind.POSE)
         self._index[kind].set(landmark.id, position)
         return landmark
+
+    def merge(self, duplicate: int, survivor: int) -> None:
+        """Forget a landmark merged into another one."""
+        landmark = self.landmarks.pop(duplicate)
+        self._index[landmark.kind].remove(duplicate)
+        self.merged_into[duplicate] = survivor
 
     def move(self, landmark_id: int, position: np.ndarray) -> None:
         self._index[self.landmarks[landmark_id].kind].set(landmark_id, position)

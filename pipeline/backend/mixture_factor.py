@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from pipeline.backend.mixture import gaussian_log_normaliser, null_component_nll
+from pipeline.backend.mixture import gaussian_log_normaliser
 
 
 @dataclass(frozen=True)
@@ -42,15 +42,13 @@ class MaxMixtureFactor:
         pose_key: int,
         components: list[Component],
         dim: int,
-        null_weight: float = 0.0,
-        null_sigma: float = 1e5,
+        null_nll: float = math.inf,
     ):
+        """`null_nll`: the null component's cost (`decisions.null_cost`), inf for none."""
         self.pose_key = pose_key
         self.components = components
         self.dim = dim
-        self.null_constant = (
-            null_component_nll(null_weight, null_sigma, dim) if null_weight > 0 else math.inf
-        )
+        self.null_constant = null_nll
         self.c_min = min(self.null_constant, *(c.constant for c in components))
         self.keys = [pose_key] + [int(c.factor.keys()[1]) for c in components]
         self.winner = -1

@@ -21,6 +21,14 @@ def split_keys(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ).astype(np.int64)
 
 
+def is_landmark_key(key: int) -> bool:
+    return (int(key) >> 56) != _POSE
+
+
+def key_index(key: int) -> int:
+    return int(key) & _INDEX_MASK
+
+
 class MovementTracker:
     def __init__(self, threshold: float):
         self.threshold = threshold

@@ -20,6 +20,7 @@ from pipeline.backend.factors import odometry_factor, pose_from_message
 from pipeline.backend.hypotheses import AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
+from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, make_method
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
@@ -36,8 +37,11 @@ class KeyframeReport:
     pose_index: int
     records: list[AssociationRecord]
     candidates: list[Candidates]
-    switched: list[AssociationRecord]  # earlier associations this keyframe changed
+    # Associations this keyframe changed (once each): earlier detections', and its own where
+    # refine moved them off their first choice. One that left and came back is not in it.
+    switched: list[AssociationRecord]
     seconds: float
+    merged: list[tuple[int, int]] = field(default_factory=list)  # (duplicate, survivor) ids
 
 
 @dataclass
@@ -48,6 +52,7 @@ class BackendResult:
     records: list[AssociationRecord]
     landmarks: LandmarkMap
     switches: int = 0
+    merges: int = 0
     step_seconds: list[float] = field(default_factory=list)
 
 
@@ -58,11 +63,27 @@ class Backend:
         self.landmarks = LandmarkMap(num_classes=confusion.shape[0], cell_size=INDEX_CELL_SIZE_M)
         self.context = BackendContext(self.solver, self.landmarks, confusion, config)
         self.method = make_method(method, self.context)
-        self.scorer = CandidateScorer(self.solver, self.landmarks, confusion, config.association)
+        self.scorer = CandidateScorer(
+            self.solver, self.landmarks, confusion, config.association, self.method.wants_joint
+        )
+        self.merger = (
+            MergeFinder(
+                self.context,
+                config.merges,
+                config.association.search_margin_m,
+                self.method.space[LandmarkKind.POINT],
+            )
+            if getattr(self.method, "merges_landmarks", False)
+            else None
+        )
+        self.merges = 0
         self.records: list[AssociationRecord] = []
         self.num_poses = 0
         self.switches = 0
         self.step_seconds: list[float] = []
+        # (pose, detection) -> landmark as last reported: refine's rounds may switch a record
+        # away and back within one keyframe, which is no change.
+        self._reported: dict[tuple[int, int], int] = {}
 
     def _add_origin(self) -> gtsam.Pose3:
         p = self.config.prior
@@ -109,20 +130,53 @@ class Backend:
             candidates = self.scorer.score(prediction, measurements)
         else:
             candidates = [Candidates.none() for _ in measurements]
-        records = [
-            self.method.associate(m, c) for m, c in zip(measurements, candidates, strict=True)
-        ]
+        self.context.keyframe_covariance = self.scorer.last_joint
+        records = self.method.associate_keyframe(measurements, candidates)
+        for record in records:
+            self.context.register(record)
         self.records.extend(records)
+        for r in records:
+            self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
         self.num_poses += 1
         marked = self.solver.update()
         switched: list[AssociationRecord] = []
         if self.method.uses_candidates:  # known association needs no map search or revisits
             switched = self.method.refine(self.context.after_update(marked))
+        merged = self.merge(prediction.pose_index)
+        if merged:
+            switched += self.method.refine(self.context.after_update(self.solver.update()))
+        switched = self._changed(switched)
+        for record in switched:
+            self.context.seen(record)
         self.switches += len(switched)
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
-        unique = list({id(r): r for r in switched}.values())
-        return KeyframeReport(prediction.pose_index, records, candidates, unique, seconds)
+        return KeyframeReport(prediction.pose_index, records, candidates, switched, seconds, merged)
+
+    def _changed(self, switched: list[AssociationRecord]) -> list[AssociationRecord]:
+        """The records among `switched` whose landmark now differs from the one last reported
+        (or the landmark that one was merged into), once each, in the order of their first
+        switch."""
+        changed = []
+        for r in {id(r): r for r in switched}.values():
+            key = (r.measurement.pose_index, r.measurement.detection_index)
+            before = self._reported[key]
+            if before >= 0:
+                before = self.landmarks.resolve(before)
+            if r.landmark_id != before:
+                self._reported[key] = r.landmark_id
+                changed.append(r)
+        return changed
+
+    def merge(self, pose_index: int) -> list[tuple[int, int]]:
+        """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""
+        if self.merger is None or pose_index % self.config.merges.every_keyframes:
+            return []
+        merged = self.merger.find(pose_index)
+        for duplicate, survivor in merged:
+            self.method.merge(survivor, duplicate)
+        self.merges += len(merged)
+        return merged
 
     def result(self) -> BackendResult:
         self.method.finish()
@@ -142,5 +196,6 @@ class Backend:
             records=self.records,
             landmarks=self.landmarks,
             switches=self.switches,
+            merges=self.merges,
             step_seconds=self.step_seconds,
         )

@@ -23,44 +23,46 @@ class Isam2Solver:
         params.relinearizeSkip = config.relinearize_skip
         params.setFactorization(config.factorization)
         self.isam = gtsam.ISAM2(params)
-        self._graph = gtsam.NonlinearFactorGraph()
+        self._pending: dict[int, gtsam.NonlinearFactor] = {}  # handle -> factor, in order
         self._values = gtsam.Values()
-        self._pending: list[int] = []
         self._removals: list[int] = []
         self._slots: dict[int, int] = {}
         self._next_handle = 0
         self.num_updates = 0
 
     def add(self, factor: gtsam.NonlinearFactor) -> int:
-        self._graph.add(factor)
         handle = self._next_handle
         self._next_handle += 1
-        self._pending.append(handle)
+        self._pending[handle] = factor
         return handle
 
     def insert(self, key: int, value) -> None:
         self._values.insert(key, value)
 
     def remove(self, handle: int) -> None:
-        self._removals.append(self._slots.pop(handle))
+        """Take a factor out: a committed one at the next update, a pending one at once."""
+        if self._pending.pop(handle, None) is None:
+            self._removals.append(self._slots.pop(handle))
 
     @property
     def has_pending(self) -> bool:
-        return self._graph.size() > 0 or bool(self._removals)
+        return bool(self._pending) or bool(self._removals)
 
     def update(self) -> set[int]:
         """Apply what is pending; returns iSAM2's marked keys (new factors' keys, removed
         factors' keys and every relinearised variable): the variables whose estimate moved."""
+        graph = gtsam.NonlinearFactorGraph()
+        for factor in self._pending.values():
+            graph.add(factor)
         try:
-            result = self.isam.update(self._graph, self._values, self._removals)
+            result = self.isam.update(graph, self._values, self._removals)
         except RuntimeError as exc:
             message = f"iSAM2 update {self.num_updates} failed: {first_line(str(exc))}"
             raise SolverError(message) from exc
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot
-        self._graph = gtsam.NonlinearFactorGraph()
         self._values = gtsam.Values()
-        self._pending = []
+        self._pending = {}
         self._removals = []
         self.num_updates += 1
         return set(result.getMarkedKeys())

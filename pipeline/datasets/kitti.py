@@ -8,12 +8,13 @@ body pose, which is what a log's ground truth holds.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.datasets.stereo import StereoSequence, image_files, read_grey
+from pipeline.datasets.stereo import StereoSequence, pair_files, read_image
 from pipeline.errors import InputError
 from pipeline.log import StereoCalibration
 
@@ -21,6 +22,14 @@ from pipeline.log import StereoCalibration
 BODY_FROM_CAMERA_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 BODY_FROM_CAMERA = np.eye(4)
 BODY_FROM_CAMERA[:3, :3] = BODY_FROM_CAMERA_ROTATION
+
+# A principal point further than this fraction of the image size from its centre means a
+# calibration made for other images (real rectified cameras: a few per cent).
+MAX_PRINCIPAL_OFFSET = 0.25
+
+# KITTI's two stereo pairs: image folders and their projection matrices in calib.txt.
+GREY_PAIR = ("image_0", "image_1", "P0", "P1")
+COLOUR_PAIR = ("image_2", "image_3", "P2", "P3")
 
 
 @dataclass(frozen=True)
@@ -91,28 +100,81 @@ def write_times(path: str | Path, times: np.ndarray) -> None:
     np.savetxt(path, np.asarray(times), fmt="%.9e")
 
 
-def read_calibration(path: str | Path, width: int, height: int) -> StereoIntrinsics:
-    """`calib.txt` (lines `P0: 12 numbers` ...): the left intrinsics and the stereo baseline."""
+def check_intrinsics(intrinsics: StereoIntrinsics, where: str) -> None:
+    """Refuse a calibration that cannot be that of these images: numbers that are not finite,
+    a focal length or baseline that is not positive, a principal point outside the image or far
+    from its centre (a calibration for another image size: KITTI's cx = 602 on half-size
+    images, say). `where` names the file in the message."""
+    k = intrinsics
+    numbers = {"fx": k.fx, "fy": k.fy, "cx": k.cx, "cy": k.cy, "baseline": k.baseline}
+    for name, value in numbers.items():
+        if not math.isfinite(value):
+            raise InputError(f"calibration {where}: {name} is {value}")
+    if min(k.fx, k.fy, k.baseline) <= 0:
+        raise InputError(f"calibration {where}: fx, fy and baseline must be positive")
+    size = f"{k.width}x{k.height}"
+    if not (0 <= k.cx < k.width and 0 <= k.cy < k.height):
+        raise InputError(
+            f"calibration {where}: principal point ({k.cx:g}, {k.cy:g}) lies outside the "
+            f"{size} images"
+        )
+    if (
+        abs(k.cx - k.width / 2) > MAX_PRINCIPAL_OFFSET * k.width
+        or abs(k.cy - k.height / 2) > MAX_PRINCIPAL_OFFSET * k.height
+    ):
+        raise InputError(
+            f"calibration {where}: principal point ({k.cx:g}, {k.cy:g}) is far from the centre "
+            f"of the {size} images (a calibration for another image size?)"
+        )
+
+
+def read_calibration_rows(path: str | Path) -> dict[str, np.ndarray]:
+    """The named rows of a KITTI calibration file (`P0: 12 numbers`, `R0_rect: 9 numbers`,
+    ...) as flat arrays."""
     path = Path(path)
-    projections: dict[str, np.ndarray] = {}
+    rows = {}
     try:
         for line in path.read_text().splitlines():
-            if ":" not in line:
-                continue
-            name, values = line.split(":", 1)
-            numbers = np.array([float(v) for v in values.split()])
-            if numbers.size == 12:
-                projections[name.strip()] = numbers.reshape(3, 4)
+            if ":" in line:
+                name, values = line.split(":", 1)
+                rows[name.strip()] = np.array([float(v) for v in values.split()])
     except (OSError, ValueError) as exc:
         raise InputError(f"calibration {path}: cannot read ({exc})") from None
-    if "P0" not in projections or "P1" not in projections:
-        raise InputError(f"calibration {path}: needs the P0 and P1 projection matrices")
-    p0, p1 = projections["P0"], projections["P1"]
-    fx = p0[0, 0]
-    baseline = -(p1[0, 3] - p0[0, 3]) / fx
-    if fx <= 0 or baseline <= 0:
-        raise InputError(f"calibration {path}: P0/P1 give no positive focal length and baseline")
-    return StereoIntrinsics(width, height, fx, p0[1, 1], p0[0, 2], p0[1, 2], float(baseline))
+    return rows
+
+
+def read_calibration(
+    path: str | Path, width: int, height: int, cameras: tuple[str, str] = ("P0", "P1")
+) -> StereoIntrinsics:
+    """`calib.txt` (lines `P0: 12 numbers` ...): the left intrinsics and the stereo baseline of
+    the `cameras` pair (KITTI: P0, P1 grey; P2, P3 colour), checked against the image size."""
+    path = Path(path)
+    projections = {
+        name: row.reshape(3, 4)
+        for name, row in read_calibration_rows(path).items()
+        if row.size == 12
+    }
+    left_name, right_name = cameras
+    if left_name not in projections or right_name not in projections:
+        raise InputError(
+            f"calibration {path}: needs the {left_name} and {right_name} projection matrices"
+        )
+    left, right = projections[left_name], projections[right_name]
+    for name, matrix in ((left_name, left), (right_name, right)):
+        if not np.all(np.isfinite(matrix)):
+            raise InputError(f"calibration {path}: {name} holds a number that is not finite")
+    fx = left[0, 0]
+    baseline = -(right[0, 3] - left[0, 3]) / fx if fx > 0 else float("nan")
+    if fx <= 0 or not baseline > 0:
+        raise InputError(
+            f"calibration {path}: {left_name}/{right_name} give no positive focal length and "
+            "baseline"
+        )
+    intrinsics = StereoIntrinsics(
+        width, height, fx, left[1, 1], left[0, 2], left[1, 2], float(baseline)
+    )
+    check_intrinsics(intrinsics, str(path))
+    return intrinsics
 
 
 def write_calibration(path: str | Path, intrinsics: StereoIntrinsics) -> None:
@@ -144,32 +206,39 @@ def body_poses_to_camera(body_poses: np.ndarray) -> np.ndarray:
 class KittiSequence(StereoSequence):
     """A sequence in the KITTI odometry layout, frame by frame.
 
-    `root` holds `image_0/` and `image_1/` (left and right), `calib.txt` and `times.txt`; ground
-    truth is read from `poses.txt` in `root` or `../../poses/<name>.txt` when either exists.
+    `root` holds a stereo pair of image folders, `calib.txt` and `times.txt`; ground truth is read
+    from `poses.txt` in `root` or `../../poses/<name>.txt` when either exists. The pair is the
+    grey one (`image_0/`, `image_1/`, P0 and P1), or the colour one (`image_2/`, `image_3/`,
+    P2 and P3) when only it is there or `prefer_colour` (object detectors are trained on
+    colour). Left and right images are paired by name.
     """
 
-    def __init__(self, root: str | Path):
+    def __init__(self, root: str | Path, prefer_colour: bool = False):
         self.root = Path(root)
         if not self.root.is_dir():
             raise InputError(f"sequence {self.root}: no such directory")
-        for name in ("image_0", "image_1", "calib.txt", "times.txt"):
+        pairs = [p for p in (GREY_PAIR, COLOUR_PAIR) if (self.root / p[0]).is_dir()]
+        if not pairs:
+            raise InputError(f"sequence {self.root}: missing image_0 (or image_2)")
+        left, right, left_camera, right_camera = pairs[-1] if prefer_colour else pairs[0]
+        for name in (right, "calib.txt", "times.txt"):
             if not (self.root / name).exists():
                 raise InputError(f"sequence {self.root}: missing {name}")
-        self.left_files = image_files(self.root / "image_0")
-        self.right_files = image_files(self.root / "image_1")
-        if len(self.left_files) != len(self.right_files) or not self.left_files:
-            raise InputError(
-                f"sequence {self.root}: image_0 has {len(self.left_files)} images, image_1 has "
-                f"{len(self.right_files)}"
-            )
+        self.left_files, self.right_files = pair_files(
+            self.root / left, self.root / right, self.root
+        )
         self.times = read_times(self.root / "times.txt")
         if len(self.times) != len(self.left_files):
             raise InputError(
                 f"sequence {self.root}: times.txt has {len(self.times)} lines for "
                 f"{len(self.left_files)} images"
             )
-        height, width = read_grey(self.left_files[0]).shape[:2]
-        self.intrinsics = read_calibration(self.root / "calib.txt", width, height)
+        first = read_image(self.left_files[0])
+        self.colour = first.ndim == 3
+        height, width = first.shape[:2]
+        self.intrinsics = read_calibration(
+            self.root / "calib.txt", width, height, (left_camera, right_camera)
+        )
         self.gt_poses = self._ground_truth()
 
     def _ground_truth(self) -> np.ndarray | None:

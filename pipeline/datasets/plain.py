@@ -2,7 +2,8 @@
 
     SEQUENCE/
       calibration.toml   the rectified stereo camera (below; see configs/plain-calibration.toml)
-      left/  right/      rectified grey or colour images; sorted by name, paired in that order
+      left/  right/      rectified grey or colour images, paired by name (left/000012.png with
+                         right/000012.png; the suffix may differ), in name order
       times.txt          optional: one time (s) a line; else frames are 1/frame_rate apart
       poses.txt          optional: left-camera poses, KITTI's format (12 numbers a line)
 
@@ -23,7 +24,8 @@ calibration.toml:
     frame_rate = 10.0    # Hz, used when there is no times.txt
 
 The reader has the same face as `KittiSequence`: `len`, `[i]` -> (left, right) grey images,
-`times`, `intrinsics`, `gt_poses` (left-camera poses, or None).
+`images(i)` -> as stored, `times`, `intrinsics`, `gt_poses` (left-camera poses, or None),
+`colour`.
 """
 
 from __future__ import annotations
@@ -36,10 +38,11 @@ import numpy as np
 
 from pipeline.datasets.kitti import (
     StereoIntrinsics,
+    check_intrinsics,
     read_poses,
     read_times,
 )
-from pipeline.datasets.stereo import StereoSequence, image_files, read_grey
+from pipeline.datasets.stereo import StereoSequence, pair_files, read_image
 from pipeline.errors import InputError
 
 CALIBRATION_FILE = "calibration.toml"
@@ -107,12 +110,7 @@ class PlainSequence(StereoSequence):
         for folder in folders:
             if not folder.is_dir():
                 raise InputError(f"sequence {self.root}: missing image folder {folder.name}/")
-        self.left_files, self.right_files = (image_files(f) for f in folders)
-        if len(self.left_files) != len(self.right_files) or not self.left_files:
-            raise InputError(
-                f"sequence {self.root}: {folders[0].name}/ has {len(self.left_files)} images, "
-                f"{folders[1].name}/ has {len(self.right_files)}"
-            )
+        self.left_files, self.right_files = pair_files(folders[0], folders[1], self.root)
         times_path = self.root / "times.txt"
         if times_path.exists():
             self.times = read_times(times_path)
@@ -123,7 +121,9 @@ class PlainSequence(StereoSequence):
                 )
         else:
             self.times = np.arange(len(self)) / float(sequence["frame_rate"])
-        height, width = read_grey(self.left_files[0]).shape[:2]
+        first = read_image(self.left_files[0])
+        self.colour = first.ndim == 3
+        height, width = first.shape[:2]
         for key, actual in (("width", width), ("height", height)):
             if key in camera and int(camera[key]) != actual:
                 raise InputError(
@@ -139,6 +139,7 @@ class PlainSequence(StereoSequence):
             camera["cy"],
             camera["baseline"],
         )
+        check_intrinsics(self.intrinsics, str(calibration))
         self.gt_poses = None
         poses_path = self.root / "poses.txt"
         if poses_path.exists():

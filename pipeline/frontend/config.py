@@ -58,9 +58,13 @@ class VoConfig:
     ransac_iterations: int = setting(at_least(1))
     refine_iterations: int = setting(at_least(1))
     min_inliers: int = setting(at_least(6))
+    min_inlier_fraction: float = setting(between(0.0, 1.0))
+    recovery_features: int = setting(at_least(10))
+    recovery_ratio: float = setting(FRACTION)
     pixel_sigma: float = setting(POSITIVE)
     min_sigma_rotation: float = setting(POSITIVE)
     min_sigma_translation: float = setting(POSITIVE)
+    translation_sigma_fraction: float = setting(at_least(0.0))
     lost_sigma_rotation: float = setting(POSITIVE)
     lost_sigma_translation: float = setting(POSITIVE)
 
@@ -107,11 +111,13 @@ class ObjectDetectorConfig:
     model: str = setting(ANY)  # a bare file name is looked up in the models directory
     class_names_file: str = setting(ANY)
     input_size: tuple[int, int] = setting(at_least(32))
-    confidence_threshold: float = setting(FRACTION)
     nms_iou: float = setting(FRACTION)
+    nested_fraction: float = setting(FRACTION)
+    nested_sigmas: float = setting(POSITIVE)
     num_threads: int = setting(at_least(1))
     classes: tuple[str, ...] = setting(ANY)
     class_map: dict  # detector class name -> one of `classes`
+    thresholds: dict  # model file name -> the score a box must reach
     stereo: StereoRangeConfig
 
     @property
@@ -119,6 +125,11 @@ class ObjectDetectorConfig:
         from pipeline.frontend.objects import resolve_model_path
 
         return resolve_model_path(self.model)
+
+    @property
+    def confidence_threshold(self) -> float:
+        """The score threshold of the configured model (`thresholds`, by its file name)."""
+        return float(self.thresholds[Path(self.model).name])
 
 
 @dataclass(frozen=True)
@@ -153,6 +164,15 @@ def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>")
     )
     need(v.tracking_window % 2 == 1, "vo.tracking_window must be odd")
     need(v.min_disparity < v.max_disparity, "vo: need min_disparity < max_disparity")
+    model = Path(ob.model).name
+    need(
+        model in ob.thresholds,
+        f"objects.thresholds has no score threshold for the model {model!r}: scores differ "
+        "between models, measure one (python -m data_tools.bench_objects --thresholds)",
+    )
+    for name, value in ob.thresholds.items():  # a free-form table: its values checked here
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and 0.0 < value <= 1.0
+        need(ok, f"objects.thresholds.{name!r} must be a number in (0, 1]")
     need(
         all(v % 32 == 0 for v in ob.input_size),
         "objects.input_size: multiples of 32 (the YOLO networks' stride)",

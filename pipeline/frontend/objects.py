@@ -6,10 +6,13 @@ style; our darknet conversion, `data_tools/darknet_to_onnx.py`, writes this) or 
 without objectness (YOLOv8 style), boxes in input pixels. Class names come from the model's
 metadata (`names`, as Ultralytics exports write it) or from `class_names_file`.
 
-The stage: letterbox the left image to the model's input, run it (onnxruntime), keep rows whose
-score (objectness x best class score) reaches the threshold (the paper: 0.8) and whose class the
-config maps to one of ours, suppress overlaps, undo the letterbox, then range each box from
-stereo (`stereo_range.py`). A box without a stereo range is dropped: a detection needs one.
+The stage: letterbox the left image (colour, where the sequence is) to the model's input, run it
+(onnxruntime), keep rows whose score (objectness x best class score) reaches the model's own
+threshold (`[objects.thresholds]`: scores of different models do not compare) and whose class
+the config maps to one of ours, suppress overlaps, undo the letterbox, then range each box from
+stereo (`stereo_range.py`). A box without a stereo range is dropped: a detection needs one. A box
+mostly inside another at the same disparity is a part of its object (a car's rear, boxed apart
+from the whole car) and is merged into it.
 
 No model is downloaded here: `python -m data_tools.models install` puts yolov3-tiny (COCO) into
 the models directory (`MMSLAM_MODELS`, default `<venv>/share/mmslam/models`).
@@ -18,7 +21,9 @@ the models directory (`MMSLAM_MODELS`, default `<venv>/share/mmslam/models`).
 from __future__ import annotations
 
 import ast
+import dataclasses
 import logging
+import math
 import os
 import sys
 from dataclasses import dataclass
@@ -148,6 +153,42 @@ def box_iou(a: BBox, b: BBox) -> float:
     return inter / union if union > 0 else 0.0
 
 
+def inside_fraction(inner: BBox, outer: BBox) -> float:
+    """The fraction of `inner`'s area that lies inside `outer`."""
+    width = max(0.0, min(inner[2], outer[2]) - max(inner[0], outer[0]))
+    height = max(0.0, min(inner[3], outer[3]) - max(inner[1], outer[1]))
+    area = (inner[2] - inner[0]) * (inner[3] - inner[1])
+    return width * height / area if area > 0 else 0.0
+
+
+def nested_duplicates(
+    boxes: list[BBox],
+    disparities: np.ndarray,
+    sigmas: np.ndarray,
+    fraction: float,
+    max_sigmas: float,
+) -> dict[int, int]:
+    """Boxes that are parts of another box's object: `{inner: outer}` for each box with at
+    least `fraction` of its area inside a larger box whose disparity agrees with its own within
+    `max_sigmas` standard deviations (`hypot` of the two `sigmas`). The outer box is the largest
+    such one that is itself no part of another."""
+    order = sorted(range(len(boxes)), key=lambda i: -_area(boxes[i]))
+    owner: dict[int, int] = {}
+    for position, inner in enumerate(order):
+        for outer in order[:position]:
+            if outer in owner or inside_fraction(boxes[inner], boxes[outer]) < fraction:
+                continue
+            difference = abs(disparities[inner] - disparities[outer])
+            if difference <= max_sigmas * math.hypot(sigmas[inner], sigmas[outer]):
+                owner[inner] = outer
+                break
+    return owner
+
+
+def _area(box: BBox) -> float:
+    return (box[2] - box[0]) * (box[3] - box[1])
+
+
 # --- the stage -------------------------------------------------------------------------------
 
 
@@ -172,6 +213,7 @@ class ObjectRecord:
     covariance: np.ndarray  # (3, 3)
     detector_class: str
     disparity: float  # the box's median disparity (px)
+    disparity_sigma: float  # its standard deviation (px)
 
 
 def add_stereo_range(
@@ -194,6 +236,7 @@ def add_stereo_range(
         found.covariance,
         box.detector_class,
         found.disparity.disparity,
+        math.hypot(config.disparity_sigma, found.disparity.spread),
     )
 
 
@@ -297,8 +340,9 @@ class ObjectDetector:
     def detect(
         self, left: np.ndarray, right: np.ndarray, intrinsics: StereoIntrinsics
     ) -> list[ObjectRecord]:
-        """Boxes in the left image with their stereo range; boxes stereo cannot range are
-        dropped."""
+        """Boxes in the left image with their stereo range, best score first; boxes stereo
+        cannot range are dropped, and boxes of parts of another box's object are merged into
+        it (`nested_duplicates`; it keeps the better score)."""
         records = []
         for box in self.detect_boxes(left):
             record = add_stereo_range(box, left, right, intrinsics, self.config.stereo)
@@ -306,4 +350,18 @@ class ObjectDetector:
                 log.debug("object box %s: no stereo range", box.bbox)
             else:
                 records.append(record)
-        return records
+        owner = nested_duplicates(
+            [r.bbox for r in records],
+            np.array([r.disparity for r in records]),
+            np.array([r.disparity_sigma for r in records]),
+            self.config.nested_fraction,
+            self.config.nested_sigmas,
+        )
+        scores = [r.score for r in records]
+        for inner, outer in owner.items():
+            log.debug("object box %s: part of %s", records[inner].bbox, records[outer].bbox)
+            scores[outer] = max(scores[outer], scores[inner])
+        kept = [
+            dataclasses.replace(r, score=scores[i]) for i, r in enumerate(records) if i not in owner
+        ]
+        return sorted(kept, key=lambda r: -r.score)

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import sys
 import time
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -34,7 +33,7 @@ from pipeline.frontend.ground_truth import (
     read_landmarks,
     tag_truth_ids,
 )
-from pipeline.frontend.stereo_vo import KeyframeStep, StereoOdometry
+from pipeline.frontend.stereo_vo import KeyframeStep, StereoOdometry, stereo_diagnosis
 from pipeline.log import (
     CompressedImage,
     Detection,
@@ -46,6 +45,7 @@ from pipeline.log import (
     Odometry,
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
+from pipeline.progress import track
 
 if TYPE_CHECKING:
     from pipeline.viz.frontend import FrontendSink
@@ -84,13 +84,14 @@ class ObjectStage(Protocol):
     def detect(self, left: np.ndarray, right: np.ndarray, intrinsics: Any) -> list[Any]: ...
 
 
-def open_sequence(path: str | Path) -> Sequence:
-    """The KITTI layout if `image_0/` is there, else the plain layout (`calibration.toml`)."""
+def open_sequence(path: str | Path, prefer_colour: bool = False) -> Sequence:
+    """The KITTI layout if `image_0/` or `image_2/` is there, else the plain layout
+    (`calibration.toml`). `prefer_colour`: KITTI's colour pair where it has both."""
     root = Path(path)
     if not root.is_dir():
         raise InputError(f"sequence {root}: no such directory")
-    if (root / "image_0").is_dir():
-        return KittiSequence(root)
+    if (root / "image_0").is_dir() or (root / "image_2").is_dir():
+        return KittiSequence(root, prefer_colour)
     if (root / CALIBRATION_FILE).exists():
         return PlainSequence(root)
     raise InputError(
@@ -100,12 +101,7 @@ def open_sequence(path: str | Path) -> Sequence:
 
 
 def _progress(items: Iterable[T], enabled: bool, description: str, total: int) -> Iterator[T]:
-    if enabled and sys.stderr.isatty():
-        from tqdm import tqdm
-
-        yield from tqdm(items, desc=description, total=total, unit="frame")
-    else:
-        yield from items
+    return track(items, total, description, "frame", enabled=enabled)
 
 
 def stamps_ns(times: np.ndarray) -> list[int]:
@@ -176,7 +172,7 @@ def run_objects(
     """The box detections of every keyframe; classes follow the tags' (offset)."""
     per_keyframe = []
     for frame in _progress(keyframes, progress, "objects", len(keyframes)):
-        left, right = sequence[frame]
+        left, right = sequence.images(frame)  # colour where the sequence is: detectors want it
         detections = []
         for record in stage.detect(left, right, sequence.intrinsics):
             truth_id = None
@@ -271,7 +267,8 @@ class Keyframes:
 
 
 def run_odometry(sequence: Sequence, config: FrontendConfig, progress: bool) -> Keyframes:
-    """Visual odometry over every frame; it chooses the keyframes."""
+    """Visual odometry over every frame; it chooses the keyframes. Every step lost is bad
+    input: the log would hold no motion at all."""
     odometry = StereoOdometry(sequence.intrinsics, config.vo, config.keyframes)
     frames, steps = [], []
     for index in _progress(range(len(sequence)), progress, "visual odometry", len(sequence)):
@@ -286,6 +283,21 @@ def run_odometry(sequence: Sequence, config: FrontendConfig, progress: bool) -> 
     if last is not None:
         frames.append(last.frame_index)
         steps.append(last)
+    lost = [step.frame_index for step in steps if step.lost]
+    if steps and len(lost) == len(steps):
+        raise InputError(
+            f"sequence {sequence.root}: visual odometry lost every frame "
+            f"({stereo_diagnosis(*sequence[0], config.vo)})"
+        )
+    if lost:
+        shown = ", ".join(str(frame) for frame in lost[:10]) + (", ..." if len(lost) > 10 else "")
+        log.warning(
+            "visual odometry lost %d of %d keyframe steps (frames %s): constant velocity with "
+            "a large covariance there",
+            len(lost),
+            len(steps),
+            shown,
+        )
     return Keyframes(frames, steps, odometry.lost_count)
 
 
@@ -328,7 +340,8 @@ def write_log(
                 translation, rotation = _pose_parts(body_poses[frame])
                 writer.write(GroundTruthPose(stamp, pose_index, translation, rotation))  # type: ignore[arg-type]
             if images is not None:
-                for topic, image in zip((LEFT_IMAGE, RIGHT_IMAGE), sequence[frame], strict=True):
+                pair = sequence.images(frame)
+                for topic, image in zip((LEFT_IMAGE, RIGHT_IMAGE), pair, strict=True):
                     data = encode_image(image, images.image_format, images.jpeg_quality)
                     frame_id = "camera_left" if topic == LEFT_IMAGE else "camera_right"
                     writer.write(CompressedImage(stamp, frame_id, images.image_format, data), topic)
@@ -360,7 +373,7 @@ def run_frontend(
 
     cv2.setNumThreads(1)  # one core a run: runs are parallelised by the caller
     config = load_frontend_config(config_path)
-    sequence = open_sequence(sequence_dir)
+    sequence = open_sequence(sequence_dir, prefer_colour=config.objects.enabled)
     if len(sequence) < 2:
         raise InputError(f"sequence {sequence_dir}: needs at least two frames")
     stamps_ns(sequence.times)  # refuse bad times before the work

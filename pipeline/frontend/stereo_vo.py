@@ -1,15 +1,26 @@
 """Sparse stereo visual odometry: keyframe to frame, PnP with RANSAC, Gauss-Newton refinement.
 
-At a keyframe, Shi-Tomasi corners of the left image are matched into the right image with
-pyramidal Lucas-Kanade (rectified images: the match must stay on its row) and triangulated.
-Every following frame tracks those corners frame to frame (Lucas-Kanade, checked backwards) and
-solves the pose of the current camera in the keyframe's camera frame from the keyframe's 3-D
-points: P3P inside RANSAC, then Gauss-Newton on the inliers, weighting each residual by the
-pixel noise plus the projected uncertainty of its triangulated point. The covariance is the
-inverse of the Gauss-Newton information, scaled by the fit's chi-square per degree of freedom
-(never below 1), plus a floor. A new keyframe starts when the camera has moved or turned enough,
-after a number of frames, or when too few corners are still tracked; its motion from the last
-keyframe (in the body frame) is one odometry step of the log.
+At a keyframe, FAST corners of the left image are matched into the right image with pyramidal
+Lucas-Kanade (rectified images: the match must stay on its row) and triangulated. Every following
+frame tracks those corners frame to frame (Lucas-Kanade from a constant-velocity prediction,
+kept only where tracking back returns to the start) and solves the pose of the current camera
+in the keyframe's camera frame from the keyframe's 3-D points: P3P inside RANSAC, then
+Gauss-Newton on the inliers, weighting each residual by the pixel noise plus the projected
+uncertainty of its triangulated point. A new keyframe starts when the camera has moved or
+turned enough, after a number of frames, or when too few corners are still tracked; its motion
+from the last keyframe (in the body frame) is one odometry step of the log.
+
+A motion is refused when fewer than a fraction of the tracked corners fit it: many wrong tracks
+of the same kind (fast motion, repeated texture) agree with each other on a wrong motion, and
+then RANSAC finds them. A frame whose tracking fails is looked for again: the keyframe's corners
+are matched into it by ORB descriptors, whose motion predicts where to track them from the
+keyframe. If that fails too, the step is logged as lost: constant velocity with a large
+covariance, and a new keyframe starts.
+
+Covariance: the inverse of the Gauss-Newton information, scaled by the fit's chi-square per
+degree of freedom (never below 1), plus floors: a constant one, and one in proportion to the
+step's translation (a baseline or focal length a fraction of a per cent off makes errors that
+grow with the distance travelled).
 
 Poses are estimated directly from keyframe to frame, so no drift builds up between keyframes.
 """
@@ -53,6 +64,16 @@ class KeyframeStep:
     covariance: np.ndarray  # 6x6, tangent order (rx, ry, rz, tx, ty, tz), right perturbation
     inliers: int
     lost: bool  # tracking failed: the motion is a constant-velocity guess
+
+
+def covariance_floor(distance: float, config: VoConfig) -> np.ndarray:
+    """Variances added to a fit's (rotation, translation) for a step of `distance` metres:
+    constant ones, and for each translation axis also `translation_sigma_fraction` of the
+    distance, squared."""
+    translation = (
+        config.min_sigma_translation**2 + (config.translation_sigma_fraction * distance) ** 2
+    )
+    return np.array([config.min_sigma_rotation**2] * 3 + [translation] * 3)
 
 
 @dataclass(frozen=True)
@@ -162,17 +183,39 @@ def match_stereo(
     return disparity, good
 
 
+def stereo_diagnosis(left: np.ndarray, right: np.ndarray, config: VoConfig) -> str:
+    """A guess, from one stereo pair, at why no frame of a sequence could be tracked."""
+    corners = detect_corners(left, config.fast_threshold, config.feature_cell, config.max_features)
+    if len(corners) < config.min_inliers:
+        return (
+            f"too few corners ({len(corners)}) in the first {left.shape[1]}x{left.shape[0]} "
+            "left image: too small, blurred or blank?"
+        )
+    matched = int(match_stereo(left, right, corners, config)[1].sum())
+    # Swapped images: the right image's corners match into the left one instead.
+    other = detect_corners(right, config.fast_threshold, config.feature_cell, config.max_features)
+    if match_stereo(right, left, other, config)[1].sum() > 2 * max(matched, config.min_inliers):
+        return "the left and right images look swapped"
+    return f"{matched} of {len(corners)} corners of the first frame match in stereo"
+
+
+def stereo_features(
+    pixels: np.ndarray, disparity: np.ndarray, intrinsics: StereoIntrinsics, pixel_sigma: float
+) -> StereoFeatures:
+    """Left pixels with their disparities, triangulated, with each point's covariance."""
+    uvd = np.column_stack([pixels, disparity])
+    jacobian = triangulation_jacobian(uvd, intrinsics)
+    covariances = jacobian @ stereo_pixel_covariance(pixel_sigma) @ np.swapaxes(jacobian, 1, 2)
+    return StereoFeatures(pixels, triangulate(uvd, intrinsics), covariances)
+
+
 def detect_stereo_features(
     left: np.ndarray, right: np.ndarray, intrinsics: StereoIntrinsics, config: VoConfig
 ) -> StereoFeatures:
     """Corners of the left image that match into the right one, triangulated."""
     pixels = detect_corners(left, config.fast_threshold, config.feature_cell, config.max_features)
     disparity, good = match_stereo(left, right, pixels, config)
-    uvd = np.column_stack([pixels[good], disparity[good]])
-    jacobian = triangulation_jacobian(uvd, intrinsics)
-    pixel_covariance = stereo_pixel_covariance(config.pixel_sigma)
-    covariances = jacobian @ pixel_covariance @ np.swapaxes(jacobian, 1, 2)
-    return StereoFeatures(pixels[good], triangulate(uvd, intrinsics), covariances)
+    return stereo_features(pixels[good], disparity[good], intrinsics, config.pixel_sigma)
 
 
 def refine_pose(
@@ -183,17 +226,22 @@ def refine_pose(
     intrinsics: StereoIntrinsics,
     pixel_sigma: float,
     iterations: int,
+    start_inliers: np.ndarray | None = None,
 ) -> PoseFit:
     """Gauss-Newton on the reprojection of keyframe points into the current left image.
 
     The unknown is `T` = the current camera in the keyframe's camera frame, perturbed on the
     right; a point `P` is seen at `project(T^-1 P)`. Each residual is weighted by the inverse
-    of `pixel_sigma^2 I + J_P Sigma_P J_P^T`; outliers (chi-square beyond 9.21 at 2 dof, times the
-    residuals' robust scale if above 1) are re-selected at every iteration after the first two.
+    of `pixel_sigma^2 I + J_P Sigma_P J_P^T`. The first two iterations use `start_inliers`
+    (default: every point); after them the inliers are re-selected among all points at every
+    iteration: chi-square within 9.21 (2 dof, 0.99) times the robust scale of the last
+    inliers' residuals, if above 1.
     """
+    start = np.ones(len(points), bool) if start_inliers is None else np.asarray(start_inliers)
     pose = camera_pose.copy()
-    inliers = np.ones(len(points), bool)
+    inliers = start.copy()
     information = np.eye(6)
+    chi2 = np.zeros(len(points))
     for iteration in range(iterations + 1):
         rotation, translation = pose[:3, :3], pose[:3, 3]
         local = (points - translation) @ rotation  # T^-1 P for every point
@@ -212,13 +260,15 @@ def refine_pose(
         )
         weight = np.linalg.inv(noise)
         chi2 = np.einsum("ni,nij,nj->n", residual, weight, residual)
-        # The first steps use every point given (RANSAC's inliers: the start may be a few
-        # pixels off); the gate then drops what does not fit the refined pose. The gate widens
-        # with the residuals' robust scale (median), so that noise larger than pixel_sigma
-        # widens the covariance instead of thinning the points.
-        inliers = in_front
-        if iteration >= UNGATED_ITERATIONS and in_front.any():
-            scale = max(1.0, float(np.median(chi2[in_front])) / CHI2_2DOF_MEDIAN)
+        # The first steps use the starting set (RANSAC's inliers: the start may be a few pixels
+        # off); the gate then chooses among all points by the refined pose. It widens with the
+        # robust scale (median) of the last inliers' residuals, so that noise larger than
+        # pixel_sigma widens the covariance instead of thinning the points; outliers, however
+        # many, do not widen it.
+        previous = inliers & in_front
+        inliers = start & in_front
+        if iteration >= UNGATED_ITERATIONS and previous.any():
+            scale = max(1.0, float(np.median(chi2[previous])) / CHI2_2DOF_MEDIAN)
             inliers = in_front & (chi2 < CHI2_2DOF_99 * scale)
         if inliers.sum() < 3:
             break
@@ -257,8 +307,14 @@ def solve_pnp(
     pixels: np.ndarray,
     intrinsics: StereoIntrinsics,
     config: VoConfig,
+    min_inlier_fraction: float | None = None,
 ) -> PoseFit | None:
-    """The current camera in the keyframe's camera frame from tracked keyframe points."""
+    """The current camera in the keyframe's camera frame from tracked keyframe points, or None
+    when fewer than `min_inliers` of them, or fewer than `min_inlier_fraction` of them (default:
+    the config's), fit one motion: many tracks that disagree mean that those that agree may
+    agree by chance (wrong tracks of the same kind agree on a wrong motion)."""
+    if min_inlier_fraction is None:
+        min_inlier_fraction = config.min_inlier_fraction
     if len(pixels) < max(config.min_inliers, 4):
         return None
     ok, rvec, tvec, ransac_inliers = cv2.solvePnPRansac(
@@ -276,6 +332,8 @@ def solve_pnp(
     camera_from_keyframe = np.eye(4)
     camera_from_keyframe[:3, :3] = cv2.Rodrigues(rvec)[0]
     camera_from_keyframe[:3, 3] = tvec.ravel()
+    start = np.zeros(len(pixels), bool)
+    start[np.ravel(ransac_inliers)] = True
     fit = refine_pose(
         invert_pose(camera_from_keyframe),
         features.points,
@@ -284,17 +342,53 @@ def solve_pnp(
         intrinsics,
         config.pixel_sigma,
         config.refine_iterations,
+        start,
     )
-    if fit.inliers.sum() < config.min_inliers:
+    inliers = int(fit.inliers.sum())
+    if inliers < config.min_inliers or inliers < min_inlier_fraction * len(pixels):
+        log.debug("%d of %d tracked corners fit the motion: refused", inliers, len(pixels))
         return None
     return fit
+
+
+def match_descriptors(
+    first: np.ndarray, second: np.ndarray, count: int, ratio: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """ORB features of two images matched by their descriptors (Lowe's ratio test): their pixels
+    in the first and in the second image, (N, 2) each. The descriptors are upright: a stereo
+    rig hardly rolls between two frames, and more of them match."""
+    orb = cv2.ORB_create(nfeatures=count)
+    described = []
+    for image in (first, second):
+        keypoints = orb.detect(image, None)
+        for keypoint in keypoints:
+            keypoint.angle = 0.0
+        described.append(orb.compute(image, keypoints))
+    (first_points, first_descriptors), (second_points, second_descriptors) = described
+    if first_descriptors is None or second_descriptors is None or len(second_points) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(first_descriptors, second_descriptors, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < ratio * p[1].distance]
+    return (
+        np.array([first_points[m.queryIdx].pt for m in good], float).reshape(-1, 2),
+        np.array([second_points[m.trainIdx].pt for m in good], float).reshape(-1, 2),
+    )
+
+
+def _subset(features: StereoFeatures, mask: np.ndarray) -> StereoFeatures:
+    return StereoFeatures(features.pixels[mask], features.points[mask], features.covariances[mask])
+
+
+# A motion, the keyframe features that fit it, and their pixels in the current frame.
+Tracked = tuple[PoseFit, StereoFeatures, np.ndarray]
 
 
 class StereoOdometry:
     """Feed frames in order with `process`; it returns a `KeyframeStep` at each new keyframe.
 
     The first frame processed is keyframe 0 (pose 0 of the log) and returns None; `finish`
-    after the last frame makes that frame a keyframe too.
+    after the last frame makes that frame a keyframe too. `lost_count` counts the steps logged
+    as lost, `recovered_count` the frames whose tracking was found again by descriptors.
     """
 
     def __init__(
@@ -304,28 +398,45 @@ class StereoOdometry:
         self.config = config
         self.keyframe_rules = keyframes
         self.keyframe_index: int | None = None  # frame index of the current keyframe
-        self._features = StereoFeatures(np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-        self._initial_count = 0
+        self._keyframe_features = StereoFeatures(
+            np.zeros((0, 2)), np.zeros((0, 3)), np.zeros((0, 3, 3))
+        )
+        self._keyframe_images: tuple[np.ndarray, np.ndarray] | None = None
+        self._features = self._keyframe_features  # those still tracked
         self._tracked = np.zeros((0, 2))  # pixels of the keyframe's features in the last frame
         self._previous_image: np.ndarray | None = None
         self._previous_pose = np.eye(4)  # last frame's camera in the keyframe's camera frame
         self._frame_motion = np.eye(4)  # last frame-to-frame camera motion (constant velocity)
         self._pending: KeyframeStep | None = None  # the last frame, were it made a keyframe
+        self._velocity_known = False  # whether _frame_motion was measured
+        self._force_keyframe = False  # the last fit is the descriptors': start afresh
         self.lost_count = 0
+        self.recovered_count = 0
 
     def process(self, frame_index: int, left: np.ndarray, right: np.ndarray) -> KeyframeStep | None:
         if self.keyframe_index is None:
             self._start_keyframe(frame_index, left, right)
             return None
-        fit = self._track(left)
-        if fit is None:
+        # Without a motion to predict from (the first frame, or after a loss), the prediction
+        # comes from descriptors first: Lucas-Kanade from a guess metres off can lock onto
+        # repeated texture, the same wrong way back and forth.
+        found = None if self._velocity_known else self._recover(left)
+        if found is None:
+            found = self._track(left)
+        if found is None and self._velocity_known:
+            found = self._recover(left)
+        if found is None:
             return self._lost(frame_index, left, right)
+        fit, self._features, self._tracked = found
+        self._previous_image = left
+        self._velocity_known = True
         frames_since = frame_index - self.keyframe_index
         pose = fit.camera_pose
-        tracked_fraction = fit.inliers.sum() / max(self._initial_count, 1)
+        tracked_fraction = fit.inliers.sum() / max(len(self._keyframe_features.pixels), 1)
         rules = self.keyframe_rules
         new_keyframe = (
-            np.linalg.norm(pose[:3, 3]) >= rules.min_translation
+            self._force_keyframe
+            or np.linalg.norm(pose[:3, 3]) >= rules.min_translation
             or rotation_angle(pose[:3, :3]) >= rules.min_rotation
             or frames_since >= rules.max_frames
             or tracked_fraction < rules.min_tracked_fraction
@@ -348,29 +459,76 @@ class StereoOdometry:
         return step
 
     def _step(self, frame_index: int, fit: PoseFit) -> KeyframeStep:
-        covariance = fit.covariance + np.diag(self._floor())
+        distance = float(np.linalg.norm(fit.camera_pose[:3, 3]))
+        covariance = fit.covariance + np.diag(covariance_floor(distance, self.config))
         motion, body_covariance = camera_to_body_motion(fit.camera_pose, covariance)
         return KeyframeStep(frame_index, motion, body_covariance, int(fit.inliers.sum()), False)
 
-    def _floor(self) -> np.ndarray:
-        c = self.config
-        return np.array([c.min_sigma_rotation] * 3 + [c.min_sigma_translation] * 3) ** 2
-
-    def _track(self, left: np.ndarray) -> PoseFit | None:
+    def _track(self, left: np.ndarray) -> Tracked | None:
+        """The keyframe's corners tracked from the last frame into this one, from where the
+        constant-velocity motion puts them, and the motion they give."""
         assert self._previous_image is not None
         if len(self._tracked) == 0:
             return None
-        # Predict where the points go (constant velocity) so that fast motion stays in reach.
         predicted_pose = self._previous_pose @ self._frame_motion
-        local = (self._features.points - predicted_pose[:3, 3]) @ predicted_pose[:3, :3]
-        guess = self._tracked.copy()
+        guess = self._predict(self._features, self._tracked, predicted_pose)
+        return self._track_from(self._features, self._previous_image, self._tracked, guess, left)
+
+    def _recover(self, left: np.ndarray) -> Tracked | None:
+        """Tracking from the last frame failed (a sudden turn or jolt): match ORB features of
+        the keyframe and this frame, triangulate the keyframe's side, and solve the motion from
+        those matches. It predicts where to track the keyframe's corners again, from the
+        keyframe straight to this frame. Where they cannot be tracked so far (a large change of
+        scale), the descriptors' own fit is the motion, if enough of the matches agree with it,
+        and this frame becomes a keyframe."""
+        assert self._keyframe_images is not None
+        c = self.config
+        keyframe_left, keyframe_right = self._keyframe_images
+        ours, theirs = match_descriptors(keyframe_left, left, c.recovery_features, c.recovery_ratio)
+        disparity, good = match_stereo(keyframe_left, keyframe_right, ours, c)
+        matched = stereo_features(ours[good], disparity[good], self.intrinsics, c.pixel_sigma)
+        # Descriptor matches are often wrong (repeated texture): RANSAC alone picks the motion
+        # that predicts the tracks, which must then pass the usual checks.
+        rough = solve_pnp(matched, theirs[good], self.intrinsics, c, min_inlier_fraction=0.0)
+        if rough is None:
+            return None
+        keyframe = self._keyframe_features
+        guess = self._predict(keyframe, keyframe.pixels, rough.camera_pose)
+        found = self._track_from(keyframe, keyframe_left, keyframe.pixels, guess, left)
+        if found is None and rough.inliers.sum() >= c.min_inlier_fraction * len(rough.inliers):
+            self._force_keyframe = True
+            found = rough, _subset(matched, rough.inliers), theirs[good][rough.inliers]
+        if found is not None:
+            self.recovered_count += 1
+            log.info("visual odometry: tracking found again by descriptors")
+        return found
+
+    def _predict(
+        self, features: StereoFeatures, fallback: np.ndarray, camera_pose: np.ndarray
+    ) -> np.ndarray:
+        """Where the features' points project from `camera_pose`; `fallback` for points that
+        would be behind or too near the camera."""
+        local = (features.points - camera_pose[:3, 3]) @ camera_pose[:3, :3]
+        guess = fallback.copy()
         ahead = local[:, 2] > 0.5
         guess[ahead] = project(local[ahead], self.intrinsics)
+        return guess
+
+    def _track_from(
+        self,
+        features: StereoFeatures,
+        image: np.ndarray,
+        pixels: np.ndarray,
+        guess: np.ndarray,
+        left: np.ndarray,
+    ) -> Tracked | None:
+        """Lucas-Kanade of `features`, seen at `pixels` in `image`, into `left` from `guess`;
+        the motion, and the features that fit it with their pixels in `left`."""
         c = self.config
-        pixels, good = track_points(
-            self._previous_image,
+        tracked, good = track_points(
+            image,
             left,
-            self._tracked,
+            pixels,
             c.tracking_window,
             c.tracking_levels,
             c.tracking_iterations,
@@ -378,38 +536,35 @@ class StereoOdometry:
             guess,
         )
         height, width = left.shape[:2]
-        good &= (pixels[:, 0] >= 0) & (pixels[:, 0] < width)
-        good &= (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
-        self._keep(good, pixels)
-        self._previous_image = left
-        fit = solve_pnp(self._features, self._tracked, self.intrinsics, c)
-        if fit is not None:
-            self._keep(fit.inliers, self._tracked)
-        return fit
-
-    def _keep(self, mask: np.ndarray, pixels: np.ndarray) -> None:
-        f = self._features
-        self._features = StereoFeatures(f.pixels[mask], f.points[mask], f.covariances[mask])
-        self._tracked = pixels[mask]
+        good &= (tracked[:, 0] >= 0) & (tracked[:, 0] < width)
+        good &= (tracked[:, 1] >= 0) & (tracked[:, 1] < height)
+        features, tracked = _subset(features, good), tracked[good]
+        fit = solve_pnp(features, tracked, self.intrinsics, c)
+        if fit is None:
+            return None
+        return fit, _subset(features, fit.inliers), tracked[fit.inliers]
 
     def _lost(self, frame_index: int, left: np.ndarray, right: np.ndarray) -> KeyframeStep:
-        """No pose from tracking: assume constant velocity, say so in the covariance, and start
-        over from this frame."""
+        """No motion that can be trusted: assume constant velocity, say so in the covariance,
+        and start over from this frame."""
         self.lost_count += 1
-        log.warning("visual odometry lost at frame %d: constant velocity assumed", frame_index)
+        log.debug("visual odometry lost at frame %d: constant velocity assumed", frame_index)
         pose = self._previous_pose @ self._frame_motion
         c = self.config
         sigmas = np.array([c.lost_sigma_rotation] * 3 + [c.lost_sigma_translation] * 3)
         motion, covariance = camera_to_body_motion(pose, np.diag(sigmas**2))
         self._start_keyframe(frame_index, left, right)
+        self._velocity_known = False
         return KeyframeStep(frame_index, motion, covariance, 0, True)
 
     def _start_keyframe(self, frame_index: int, left: np.ndarray, right: np.ndarray) -> None:
         self.keyframe_index = frame_index
         self._pending = None
-        self._features = detect_stereo_features(left, right, self.intrinsics, self.config)
-        self._initial_count = len(self._features.pixels)
+        self._force_keyframe = False
+        self._keyframe_features = detect_stereo_features(left, right, self.intrinsics, self.config)
+        self._keyframe_images = (left, right)
+        self._features = self._keyframe_features
         self._tracked = self._features.pixels.copy()
         self._previous_image = left
         self._previous_pose = np.eye(4)
-        log.debug("keyframe at frame %d: %d stereo features", frame_index, self._initial_count)
+        log.debug("keyframe at frame %d: %d stereo features", frame_index, len(self._tracked))

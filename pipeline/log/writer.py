@@ -3,7 +3,9 @@
 Every message goes through the reader's own checks (`validate.py`) before it is written, so a
 log this writer completes is one the reader accepts; a message that fails them is an
 `InputError` and nothing is written. The file appears only once complete (`AtomicFile`), with
-MCAP's CRCs over its chunks, its data section and its summary.
+MCAP's CRCs over its chunks, its data section and its summary. Unless asked not to, it also
+writes Foxglove's well-known messages under `/foxglove/` (`pipeline/foxglove/log_topics.py`),
+from the messages that passed the checks, so that the log shows in Foxglove; readers skip them.
 """
 
 from __future__ import annotations
@@ -44,9 +46,12 @@ _ENCODERS = {
 
 
 class LogWriter:
-    """Writes a log; use as a context manager. Messages go in the order they are written."""
+    """Writes a log; use as a context manager. Messages go in the order they are written.
 
-    def __init__(self, path: str | os.PathLike, metadata: LogMetadata):
+    With `foxglove` (the default), Foxglove's well-known messages are written beside the
+    contract's topics."""
+
+    def __init__(self, path: str | os.PathLike, metadata: LogMetadata, foxglove: bool = True):
         self.path = Path(path)
         self.metadata = metadata
         record = metadata_record(metadata)
@@ -63,6 +68,12 @@ class LogWriter:
         self._channels: dict[str, ChannelInfo] = {}
         self._counts: Counter[str] = Counter()
         self._writer.add_metadata(METADATA_NAME, record)
+        self._foxglove = None
+        if foxglove:
+            from pipeline.foxglove.channels import FoxgloveChannels
+            from pipeline.foxglove.log_topics import LogMirror
+
+            self._foxglove = LogMirror(FoxgloveChannels(self._writer), metadata)
 
     def _refusal(self, detail: str) -> InputError:
         return InputError(f"not writing {self.path}: {detail}")
@@ -103,6 +114,8 @@ class LogWriter:
             data=data,
             sequence=0,
         )
+        if self._foxglove is not None:
+            self._foxglove.write(msg)
 
     def close(self) -> None:
         try:
@@ -110,7 +123,13 @@ class LogWriter:
         except LogError as exc:
             self.abort()
             raise self._refusal(exc.detail) from None
-        self._writer.finish()
+        try:
+            if self._foxglove is not None:
+                self._foxglove.finish()
+            self._writer.finish()
+        except BaseException:
+            self.abort()
+            raise
         self._out.commit()
 
     def abort(self) -> None:

@@ -1,14 +1,18 @@
 """What a recording draws, computed from a run: pure functions on numpy, no Rerun.
 
-Colours per class, uncertainty ellipsoids from covariances, each detection's hypotheses with
-their weights and winner, and the reference trajectories (ground truth aligned at pose 0, dead
-reckoning) that the estimate is shown against.
+Colours per class and per kind of line, uncertainty ellipsoids from covariances, each
+detection's hypotheses with their weights and winner, the labels of landmarks and detections,
+the reference trajectories (ground truth aligned at pose 0, dead reckoning) that the estimate is
+shown against, the default eye over the map, the legend's layout, and a trailing median for
+plots of noisy per-keyframe values.
 """
 
 from __future__ import annotations
 
 import colorsys
 import functools
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,10 +21,10 @@ from pipeline.backend.association import chi2_gate
 from pipeline.backend.candidates import Candidates
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.geometry import rotation_from_quaternion
-from pipeline.log.messages import GroundTruthPose, Odometry
+from pipeline.log.messages import Detection, GroundTruthPose, Odometry
 
-# Qualitative colours for the first classes (chosen to stay apart from the hypothesis colours
-# below); further classes take hues spaced by the golden angle.
+# Qualitative colours for the first classes (chosen to stay apart from the trajectory and
+# hypothesis colours below); further classes take hues spaced by the golden angle.
 _PALETTE = np.array(
     [
         [31, 119, 180],  # blue
@@ -35,13 +39,22 @@ _PALETTE = np.array(
     dtype=np.uint8,
 )
 
-# Hypothesis lines: the winner stands out, losers are thin and grey, the null hypothesis red.
+# Trajectories: the estimate bright, ground truth grey (its landmarks too), odometry yellow.
+ESTIMATE_RGB = (245, 245, 245)
+TRUTH_RGB = (125, 125, 125)
+ODOMETRY_RGB = (235, 205, 50)
+
+# Hypothesis lines: the winner stands out, losers are thin and bluish grey, the null hypothesis
+# red; switches magenta.
 WINNER_RGB = (60, 220, 90)
-NEW_LANDMARK_RGB = (90, 170, 255)
-LOSER_RGB = (150, 150, 150)
+NEW_LANDMARK_RGB = (175, 240, 175)
+LOSER_RGB = (140, 150, 175)
 NULL_WINNER_RGB = (235, 50, 50)
 NULL_LOSER_RGB = (150, 80, 80)
-SWITCH_RGB = (255, 190, 0)
+SWITCH_RGB = (255, 60, 255)
+
+# Rerun's default vertical field of view of a 3-D view (re_view_spatial's Eye::DEFAULT_FOV_Y).
+RERUN_FOV_Y = math.radians(55.0)
 
 
 def packed_rgba(rgb, alpha: int = 255) -> np.ndarray:
@@ -130,14 +143,20 @@ def detection_hypotheses(
 
     GPDA's record keeps the current EM weights; a mixture keeps its components; ML commits to
     one landmark but weighed all the candidates; a detection without candidates is a new
-    landmark (or, with `known`, the true one). The null hypothesis comes last where it is a
-    component. `created`: the record's landmark was made by this detection."""
+    landmark (or, with `known`, the true one), also when mm-nh found its candidates too
+    unsure. The null hypothesis comes last where it is a component. `created`: the record's
+    landmark was made by this detection."""
     if record.graph_weights is not None:
         ids, weights = list(record.landmark_ids), np.asarray(record.graph_weights, dtype=float)
-    elif len(candidates) > len(record.landmark_ids):
-        ids, weights = [int(j) for j in candidates.landmark_ids], candidates.weights
     else:
-        ids, weights = list(record.landmark_ids), np.asarray(record.weights, dtype=float)
+        # Every candidate weighed, with the record's own weight where it is a component (a
+        # mixture's weights leave room for the null); then a landmark the detection made
+        # itself because no candidate was a sure match.
+        own = dict(zip((int(j) for j in record.landmark_ids), record.weights, strict=True))
+        ids = [int(j) for j in candidates.landmark_ids]
+        weights = [own.get(j, w) for j, w in zip(ids, candidates.weights, strict=True)]
+        ids += [j for j in own if j not in ids]
+        weights = np.array(weights + [own[j] for j in ids[len(weights) :]], dtype=float)
     winner = record.landmark_id
     k = record.measurement.detection_index
     out = [
@@ -162,13 +181,82 @@ def hypothesis_style(h: Hypothesis) -> tuple[tuple[int, int, int], float]:
 
 
 def hypothesis_label(h: Hypothesis) -> str:
-    target = "null" if h.landmark_id == NULL else f"L{h.landmark_id}"
-    mark = " (new)" if h.new_landmark else ""
-    return f"d{h.detection_index}→{target}{mark} {h.weight:.2f}"
+    """Short, for a line in the map: the landmark end carries the landmark's own label."""
+    if h.landmark_id == NULL:
+        return f"null {h.weight:.2f}"
+    return "new" if h.new_landmark else f"{h.weight:.2f}"
 
 
 def landmark_label(landmark_id: int, class_name: str, probability: float) -> str:
     return f"L{landmark_id} {class_name} {probability:.2f}"
+
+
+def detection_label(detection: Detection, name: str, winner: int | None = None) -> str:
+    """A detection in an image or the body frame: what it reported, how sure, how far, and
+    the landmark it went to (when known). `name`: its class name, or the tag it read."""
+    label = f"{name} {detection.score:.2f} {detection.range:.1f} m"
+    if winner is None:
+        return label
+    return f"{label} → {'null' if winner == NULL else f'L{winner}'}"
+
+
+def trailing_median(values: Sequence[float], window: int) -> float:
+    """The median of the last `window` values: per-keyframe times read as a trend, not spikes."""
+    return float(np.median(values[-window:]))
+
+
+def top_down_eye(
+    points: np.ndarray, aspect: float, tilt: float, margin: float = 1.1, fov_y: float = RERUN_FOV_Y
+) -> tuple[np.ndarray, np.ndarray]:
+    """Position and target of a 3-D view's eye that looks down on all `points` (N, 3): above
+    the middle of their box, tilted by `tilt` (rad) from the vertical towards -y so that a Z-up
+    orbit stays defined, far enough that the box, times `margin`, fits a view of this aspect
+    (width / height)."""
+    low, high = np.min(points, axis=0), np.max(points, axis=0)
+    target = 0.5 * (low + high)
+    half_x, half_y = 0.5 * (high[:2] - low[:2])
+    half_height = max(half_y, half_x / aspect, 1.0)  # a map of one point still gets a view
+    distance = margin * half_height / math.tan(0.5 * fov_y) + 0.5 * (high[2] - low[2])
+    position = target + distance * np.array([0.0, -math.sin(tilt), math.cos(tilt)])
+    return position, target
+
+
+@dataclass(frozen=True)
+class LegendItem:
+    label: str
+    rgb: tuple[int, int, int]
+    line: bool  # a short line (trajectories, hypotheses) or a dot (landmarks, marks)
+
+
+def class_legend(class_names: Sequence[str]) -> list[LegendItem]:
+    rgb = class_colors(len(class_names))
+    return [
+        LegendItem(name, (int(rgb[c, 0]), int(rgb[c, 1]), int(rgb[c, 2])), line=False)
+        for c, name in enumerate(class_names)
+    ]
+
+
+def replay_legend(class_names: Sequence[str], ground_truth: bool) -> list[LegendItem]:
+    """The landmark classes, the trajectories, and the marks of the association step."""
+    truth = [LegendItem("ground truth", TRUTH_RGB, True)] if ground_truth else []
+    return [
+        *class_legend(class_names),
+        LegendItem("estimate", ESTIMATE_RGB, True),
+        *truth,
+        LegendItem("odometry alone", ODOMETRY_RGB, True),
+        LegendItem("chosen", WINNER_RGB, True),
+        LegendItem("new landmark", NEW_LANDMARK_RGB, True),
+        LegendItem("other candidate", LOSER_RGB, True),
+        LegendItem("null hypothesis", NULL_WINNER_RGB, False),
+        LegendItem("switch", SWITCH_RGB, True),
+    ]
+
+
+def legend_positions(count: int, per_row: int, spacing: float) -> np.ndarray:
+    """(count, 2) centres of legend swatches, row by row, `spacing` apart, rows one unit down
+    (a 2-D view's y points down); labels go below each swatch."""
+    k = np.arange(count)
+    return np.stack([spacing * (k % per_row), k // per_row], axis=1).astype(float)
 
 
 def _matrix(translation, rotation) -> np.ndarray:

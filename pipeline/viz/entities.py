@@ -14,15 +14,20 @@ GROUND_TRUTH_TRAJECTORY = "/world/trajectory/ground_truth"  # aligned at pose 0
 ODOMETRY_TRAJECTORY = "/world/trajectory/odometry"  # dead reckoning from pose 0
 GROUND_TRUTH_LANDMARKS = "/world/ground_truth/landmarks"
 
-# One child a landmark, /world/landmarks/<id>: its point (coloured and labelled by MAP class)
-# and its uncertainty ellipsoid, logged together (one call a landmark).
+# One child a landmark, /world/landmarks/<id>: its point (coloured and labelled by MAP class).
 LANDMARKS = "/world/landmarks"
+# Every landmark's uncertainty ellipsoid, re-logged at every refresh and at the end: hidden in
+# the default layout (hundreds of them hide the map); those of the landmarks a keyframe weighs
+# are drawn with CANDIDATES.
+UNCERTAINTY = "/world/uncertainty"
 
 # This keyframe's detections: a line from the pose to every landmark each may be (and to its
 # measured point for the null hypothesis), and the measured points themselves.
 HYPOTHESES = "/world/associations/hypotheses"
+# The landmarks they weighed: labelled (id, MAP class, its probability), with their ellipsoids
+CANDIDATES = "/world/associations/candidates"
 NULL_WINS = "/world/associations/null"  # detections the null hypothesis took this keyframe
-SWITCHES = "/world/associations/switches"  # records whose landmark changed this keyframe
+SWITCHES = "/world/associations/switches"  # earlier detections whose landmark changed now
 REJECTED = "/world/associations/rejected"  # at the end: every detection left to the null
 
 CAMERA = "/camera/left"
@@ -30,7 +35,12 @@ CAMERA_DETECTIONS = "/camera/left/detections"  # boxes, labelled with class and 
 CAMERA_TAGS = "/camera/left/tags"  # tag outlines (front-end)
 
 EVENTS = "/events"  # text: null-hypothesis wins and association switches
-SUMMARY = "/summary"  # text: the run's metrics, at the end
+SUMMARY = "/summary"  # text: the run's counts as it goes, and its metrics at the end
+
+# A 2-D view of swatches naming the map's colours (static)
+LEGEND = "/legend"
+LEGEND_MARKS = "/legend/marks"
+LEGEND_LINES = "/legend/lines"
 
 METRICS = "/metrics"
 ERROR_ONLINE = "/metrics/translation_error/online"  # newest pose when it was added
@@ -38,7 +48,7 @@ ERROR_FINAL = "/metrics/translation_error/final"  # every pose in the final esti
 LANDMARK_COUNT = "/metrics/counts/landmarks"
 SWITCH_COUNT = "/metrics/counts/switches"  # cumulative
 NULL_RATE = "/metrics/null_rate"  # detections associated to the null hypothesis, so far
-STEP_MS = "/metrics/time/backend_ms"
+STEP_MS = "/metrics/time/backend_ms"  # trailing median of the per-keyframe times
 VIZ_MS = "/metrics/time/viz_ms"
 
 # The front-end's own series

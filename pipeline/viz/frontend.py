@@ -19,6 +19,7 @@ if TYPE_CHECKING:
 class TagOutline:
     tag_id: int
     corners: np.ndarray  # (4, 2) left-image pixels, libapriltag's order
+    detection: Detection | None = None  # the log's detection of this tag (its range, class)
 
 
 @dataclass(frozen=True)
@@ -33,7 +34,7 @@ class FrontendKeyframe:
 
 
 class FrontendSink(Protocol):
-    def frontend_start(self, metadata: LogMetadata) -> None: ...
+    def frontend_start(self, metadata: LogMetadata, extent: np.ndarray | None = None) -> None: ...
 
     def frontend_keyframe(self, keyframe: FrontendKeyframe) -> None: ...
 
@@ -52,23 +53,34 @@ def show_keyframes(
     """Hand every keyframe to `sink`, in order. `keyframes` is the front-end's `Keyframes`
     (frames, steps); `outlines` per keyframe (tag id, corners), or empty without tags. Images
     are read again from `sequence`: only the keyframes', and only when something is shown."""
-    sink.frontend_start(metadata)
-    pose = np.eye(4)
+    poses = [np.eye(4)]
+    for step in keyframes.steps[: len(keyframes.frames) - 1]:
+        poses.append(poses[-1] @ step.motion)
+    sink.frontend_start(metadata, np.array([pose[:3, 3] for pose in poses]))
     for index, frame in enumerate(keyframes.frames):
         step = keyframes.steps[index - 1] if index > 0 else None
-        if step is not None:
-            pose = pose @ step.motion
         left, _ = sequence[frame]
         tags = outlines[index] if index < len(outlines) else []
+        found = list(detections[index])
         sink.frontend_keyframe(
             FrontendKeyframe(
                 pose_index=index,
                 stamp_ns=stamps_ns[frame],
                 left=left,
-                body_pose=pose.copy(),
+                body_pose=poses[index].copy(),
                 step=step,
-                tags=[TagOutline(int(tag_id), np.asarray(c, float)) for tag_id, c in tags],
-                detections=list(detections[index]),
+                tags=[tag_outline(int(tag_id), np.asarray(c, float), found) for tag_id, c in tags],
+                detections=found,
             )
         )
     sink.frontend_finish()
+
+
+def tag_outline(tag_id: int, corners: np.ndarray, detections: list[Detection]) -> TagOutline:
+    """A tag's outline with its detection: the tag detection whose box bounds these corners."""
+    low, high = corners.min(axis=0), corners.max(axis=0)
+    box = (float(low[0]), float(low[1]), float(high[0]), float(high[1]))
+    for d in detections:
+        if d.source == "apriltag" and d.bbox is not None and np.allclose(d.bbox, box):
+            return TagOutline(tag_id, corners, d)
+    return TagOutline(tag_id, corners)

@@ -7,11 +7,13 @@ What every keyframe adds a row to (the robot's pose, the trajectory since the la
 time series) is held back and sent as columns every `refresh_every` keyframes: one Rerun call
 per entity instead of one per keyframe, since each call costs ~0.1 ms. A refresh also re-logs
 the whole trajectory and the landmarks that moved; the end of the run re-logs everything from
-the final estimate. Entity paths: `pipeline/viz/entities.py`.
+the final estimate. Entity paths: `pipeline/viz/entities.py`; what is drawn and said:
+`draw.py`, `events.py`, `summary.py`; the layout: `blueprint.py`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import shutil
@@ -36,10 +38,16 @@ from pipeline.errors import InputError
 from pipeline.geometry import point_from_bearing_elevation_range
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.outputs import atomic_output
-from pipeline.viz import draw
+from pipeline.viz import draw, events
 from pipeline.viz import entities as e
-from pipeline.viz.blueprint import frontend_blueprint, replay_blueprint
+from pipeline.viz.blueprint import (
+    LEGEND_SPACING,
+    frontend_blueprint,
+    legend_per_row,
+    replay_blueprint,
+)
 from pipeline.viz.config import VizConfig, load_viz_config
+from pipeline.viz.summary import RunState, summary_markdown
 
 if TYPE_CHECKING:
     from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
@@ -53,9 +61,9 @@ VIEWER_WAIT_S = 2.0
 # Relative change of a landmark's covariance worth logging again (about 2.5 % in its axes).
 ELLIPSOID_TOLERANCE = 0.05
 MEDIA_TYPES = {"jpeg": "image/jpeg", "jpg": "image/jpeg", "png": "image/png"}
-TRAJECTORY_RGB = (40, 200, 110)
-TRUTH_RGB = (120, 120, 120)
-ODOMETRY_RGB = (200, 120, 40)
+# Every landmark's uncertainty ellipsoid: thin (hundreds of them, when shown).
+ELLIPSOID_LINE_PT = 0.5
+LEVELS = {events.INFO: rr.TextLogLevel.INFO, events.WARN: rr.TextLogLevel.WARN}
 
 
 def viewer_url(address: str) -> str:
@@ -103,10 +111,6 @@ def _differs(covariance: np.ndarray | None, shown: np.ndarray | None) -> bool:
     return bool(np.linalg.norm(covariance - shown) > ELLIPSOID_TOLERANCE * scale)
 
 
-def _name(landmark_id: int) -> str:
-    return "null" if landmark_id == NULL else f"L{landmark_id}"
-
-
 def _row(value: Any) -> np.ndarray:
     """A Pose3 or a point as a flat row [R (9, row-major), t (3)], as the solver gives them."""
     if hasattr(value, "translation"):
@@ -122,6 +126,7 @@ class _Shown:
     label: str
     class_id: int
     covariance: np.ndarray | None  # world frame, of its position
+    ellipsoid: tuple[np.ndarray, np.ndarray] | None  # half sizes, quaternion
 
 
 class _HeldRows:
@@ -131,6 +136,7 @@ class _HeldRows:
         self.scalars: dict[str, list[tuple[int, int, float]]] = defaultdict(list)
         self.poses: list[tuple[int, int, np.ndarray]] = []  # (pose, stamp, 4x4)
         self.strips: dict[str, list[tuple[int, int, np.ndarray]]] = defaultdict(list)
+        self.markdown: dict[str, list[tuple[int, int, str]]] = defaultdict(list)
 
     def send(self, rec: rr.RecordingStream, robot_path: str) -> None:
         def times(rows: list) -> list[rr.TimeColumn]:
@@ -160,9 +166,16 @@ class _HeldRows:
                 rec.send_columns(
                     path, indexes=times(rows), columns=strips.partition([1] * len(rows))
                 )
+        for path, rows in self.markdown.items():
+            if rows:
+                text = rr.TextDocument.columns(
+                    text=[r[2] for r in rows], media_type=["text/markdown"] * len(rows)
+                )
+                rec.send_columns(path, indexes=times(rows), columns=text)
         self.scalars.clear()
         self.poses.clear()
         self.strips.clear()
+        self.markdown.clear()
 
 
 class RerunSink:
@@ -199,7 +212,11 @@ class RerunSink:
         self._landmark_total = 0  # landmarks before the current keyframe
         self._winners: dict[tuple[int, int], int] = {}  # (pose, detection) -> landmark shown
         self._null_count = 0
+        self._changes: dict[tuple[int, int], int] = defaultdict(int)  # per detection, as shown
         self._backend: Backend | None = None
+        self._method = ""
+        self._step_ms: list[float] = []  # per keyframe, for the trailing medians
+        self._viz_ms: list[float] = []
 
     # ----------------------------------------------------------------------------------- open
     @classmethod
@@ -255,7 +272,13 @@ class RerunSink:
         recording.connect_grpc(url)
         return cls(recording, config)
 
-    def _begin(self, blueprint: Any, name: str, class_names: tuple[str, ...]) -> None:
+    def _begin(
+        self,
+        blueprint: Any,
+        name: str,
+        class_names: tuple[str, ...],
+        legend: list[draw.LegendItem],
+    ) -> None:
         if self._started:
             raise RuntimeError("a RerunSink records one run")
         self._started = True
@@ -268,6 +291,8 @@ class RerunSink:
         self._class_names = class_names
         rgb = draw.class_colors(len(class_names))
         self._colours = draw.packed_rgba(rgb)
+        # Class colours and names for everything logged with class ids: hovering a landmark,
+        # a detection or a box names its class.
         self.rec.log(
             "/",
             rr.AnnotationContext(
@@ -278,6 +303,34 @@ class RerunSink:
             ),
             static=True,
         )
+        self._log_legend(legend)
+
+    def _log_legend(self, items: list[draw.LegendItem]) -> None:
+        """The swatches of the legend view, each labelled below (static): a short line for
+        lines, a dot for marks."""
+        centres = draw.legend_positions(len(items), legend_per_row(len(items)), LEGEND_SPACING)
+        half = np.array([0.35 * LEGEND_SPACING, 0.0])
+        for line in (True, False):
+            chosen = [
+                (c, item) for c, item in zip(centres, items, strict=True) if item.line == line
+            ]
+            if not chosen:
+                continue
+            style = {
+                "colors": draw.packed_rgba([item.rgb for _, item in chosen]),
+                "labels": [item.label for _, item in chosen],
+                "show_labels": True,
+            }
+            swatches = (
+                rr.LineStrips2D(
+                    [np.array([c - half, c + half]) for c, _ in chosen],
+                    radii=rr.Radius.ui_points(3.0),
+                    **style,
+                )
+                if line
+                else rr.Points2D([c for c, _ in chosen], radii=rr.Radius.ui_points(6.0), **style)
+            )
+            self.rec.log(e.LEGEND_LINES if line else e.LEGEND_MARKS, swatches, static=True)
 
     def _set_time(self, pose_index: int, stamp_ns: int) -> None:
         self.rec.set_time(e.POSE_TIMELINE, sequence=pose_index)
@@ -289,7 +342,7 @@ class RerunSink:
     def _trail_style(self, path: str) -> None:
         """Colour and width of a trail whose strips are sent as columns (strips only)."""
         style = rr.LineStrips3D.from_fields(
-            colors=draw.packed_rgba(TRAJECTORY_RGB)[None], radii=rr.Radius.ui_points(2.0)
+            colors=draw.packed_rgba(draw.ESTIMATE_RGB)[None], radii=rr.Radius.ui_points(2.5)
         )
         self.rec.log(path, style, static=True)
 
@@ -306,11 +359,13 @@ class RerunSink:
         return int(self._stamps_ns[pose_index]) if pose_index < len(self._stamps_ns) else 0
 
     @staticmethod
-    def _trajectory(positions: Any, rgb: tuple[int, int, int], label: str) -> rr.LineStrips3D:
+    def _trajectory(
+        positions: Any, rgb: tuple[int, int, int], label: str, width: float = 2.5
+    ) -> rr.LineStrips3D:
         return rr.LineStrips3D(
             [np.asarray(positions, dtype=float)],
             colors=draw.packed_rgba(rgb)[None],
-            radii=rr.Radius.ui_points(2.0),
+            radii=rr.Radius.ui_points(width),
             labels=[label],
             show_labels=False,
         )
@@ -319,12 +374,23 @@ class RerunSink:
     def start(self, log: DetectionLog, method: str) -> None:
         left_images = log.images.get(LEFT_IMAGE, []) if self.wants_images else []
         alignment = draw.ground_truth_alignment(log.ground_truth_poses)
-        self._begin(
-            replay_blueprint(images=bool(left_images), ground_truth=alignment is not None),
-            f"mmslam replay {method}",
-            log.metadata.class_names,
+        odometry = draw.dead_reckoning(log.odometry)
+        truth = np.zeros((0, 3))
+        if alignment is not None:
+            indices, truth = draw.aligned_ground_truth(log.ground_truth_poses, alignment)
+            self._truth = {int(i): p for i, p in zip(indices, truth, strict=True)}
+        legend = draw.replay_legend(log.metadata.class_names, alignment is not None)
+        blueprint = replay_blueprint(
+            images=bool(left_images),
+            ground_truth=alignment is not None,
+            extent=np.vstack([odometry, truth]),
+            legend_items=len(legend),
         )
+        self._begin(blueprint, f"mmslam replay {method}", log.metadata.class_names, legend)
+        self._method = method
         self._stamps_ns = np.array(log.pose_stamps_ns(), dtype=np.int64)
+        self._set_time(0, self._stamp(0))
+        self._event(events.started(method, log.num_poses, log.num_detections))
         self._images = {image.stamp_ns: image for image in left_images}
         self.rec.send_property(
             "run",
@@ -338,26 +404,25 @@ class RerunSink:
         )
         self.rec.log(
             e.ODOMETRY_TRAJECTORY,
-            self._trajectory(draw.dead_reckoning(log.odometry), ODOMETRY_RGB, "dead reckoning"),
+            self._trajectory(odometry, draw.ODOMETRY_RGB, "odometry alone", width=1.5),
             static=True,
         )
         if alignment is not None:
-            indices, positions = draw.aligned_ground_truth(log.ground_truth_poses, alignment)
-            self._truth = {int(i): p for i, p in zip(indices, positions, strict=True)}
             self.rec.log(
                 e.GROUND_TRUTH_TRAJECTORY,
-                self._trajectory(positions, TRUTH_RGB, "ground truth"),
+                self._trajectory(truth, draw.TRUTH_RGB, "ground truth", width=1.5),
                 static=True,
             )
-            truth = log.ground_truth_landmarks
-            if truth is not None and truth.landmarks:
-                points = np.array([lm.position for lm in truth.landmarks], dtype=float)
+            landmarks = log.ground_truth_landmarks
+            if landmarks is not None and landmarks.landmarks:
+                points = np.array([lm.position for lm in landmarks.landmarks], dtype=float)
                 self.rec.log(
                     e.GROUND_TRUTH_LANDMARKS,
                     rr.Points3D(
                         points @ alignment[:3, :3].T + alignment[:3, 3],
-                        class_ids=[lm.class_id for lm in truth.landmarks],
-                        labels=[f"true {lm.id}" for lm in truth.landmarks],
+                        colors=draw.packed_rgba(draw.TRUTH_RGB)[None],
+                        class_ids=[lm.class_id for lm in landmarks.landmarks],
+                        labels=[f"true {lm.id}" for lm in landmarks.landmarks],
                         radii=rr.Radius.ui_points(2.0),
                         show_labels=False,
                     ),
@@ -367,10 +432,11 @@ class RerunSink:
             self._series(e.ERROR_FINAL, "final estimate", (60, 120, 230))
         self._trail_style(e.TRAJECTORY_RECENT)
         self._series(e.LANDMARK_COUNT, "landmarks", (31, 119, 180))
-        self._series(e.SWITCH_COUNT, "switches (total)", (255, 170, 0))
-        self._series(e.NULL_RATE, "null-hypothesis rate", (235, 50, 50))
-        self._series(e.STEP_MS, "back-end", (90, 90, 90))
-        self._series(e.VIZ_MS, "recording", (148, 103, 189))
+        self._series(e.SWITCH_COUNT, "switches (total)", draw.SWITCH_RGB)
+        self._series(e.NULL_RATE, "null-hypothesis rate", draw.NULL_WINNER_RGB)
+        window = self.config.smoothing_window
+        self._series(e.STEP_MS, f"back-end (median of {window})", (170, 170, 170))
+        self._series(e.VIZ_MS, f"recording (median of {window})", (148, 103, 189))
 
     def _fetch(
         self, backend: Backend, pose_indices: set[int], landmark_ids: set[int]
@@ -406,10 +472,10 @@ class RerunSink:
         *,
         unless_unchanged: bool = False,
     ) -> None:
-        """A landmark's point, coloured and labelled by its MAP class, with its ellipsoid. A
-        `covariance` of None keeps the one last shown, moved with the landmark. Only what
-        changed since the landmark was last shown is logged (Rerun keeps the rest), and with
-        `unless_unchanged` nothing if nothing visibly changed."""
+        """A landmark's point, coloured and labelled by its MAP class; its ellipsoid is kept for
+        `CANDIDATES` and `UNCERTAINTY`. A `covariance` of None keeps the one last shown, moved
+        with the landmark. Only what changed since the landmark was last shown is logged (Rerun
+        keeps the rest), and with `unless_unchanged` nothing if nothing visibly changed."""
         position = row[9:].copy()
         c, label = self._landmark_label(landmarks, landmark_id)
         shown = self._landmarks.get(landmark_id)
@@ -417,33 +483,51 @@ class RerunSink:
         if covariance is not None:
             is_pose = landmarks.landmarks[landmark_id].kind is LandmarkKind.POSE
             world = draw.position_covariance(covariance, row[:9].reshape(3, 3) if is_pose else None)
-        if (
-            unless_unchanged
-            and shown is not None
-            and shown.label == label
-            and np.linalg.norm(position - shown.position) <= self.config.refresh_move_m
-            and not _differs(world, shown.covariance)
-        ):
+        point_changed = (
+            not unless_unchanged
+            or shown is None
+            or shown.label != label
+            or np.linalg.norm(position - shown.position) > self.config.refresh_move_m
+        )
+        if not point_changed and not _differs(world, shown.covariance):
             return
-        new_class = shown is None or shown.class_id != c
-        point: dict[str, Any] = {"positions": position[None]}
-        if new_class:
-            point.update(colors=self._colours[c : c + 1], class_ids=[c])
-        if shown is None:
-            point["radii"] = rr.Radius.ui_points(5.0)
-        if shown is None or shown.label != label:
-            point["labels"] = [label]
-        parts: list[Any] = [rr.Points3D.from_fields(**point)]
-        if world is not None:
-            shape: dict[str, Any] = {"centers": position[None]}
-            if covariance is not None or shown is None or shown.covariance is None:
-                half_sizes, quaternion = draw.ellipsoid(world, self.config.ellipsoid_confidence)
-                shape.update(half_sizes=half_sizes[None], quaternions=quaternion[None])
-            if new_class or shown.covariance is None:
-                shape.update(colors=self._colours[c : c + 1], fill_mode="MajorWireframe")
-            parts.append(rr.Ellipsoids3D.from_fields(**shape))
-        self.rec.log(e.landmark_path(landmark_id), *parts)
-        self._landmarks[landmark_id] = _Shown(position, label, c, world)
+        if point_changed:
+            point: dict[str, Any] = {"positions": position[None]}
+            if shown is None or shown.class_id != c:  # coloured by the annotation context
+                point["class_ids"] = [c]
+            if shown is None:
+                # The label is for hovering and selecting: hundreds of them hide the map. The
+                # landmarks a keyframe weighs are labelled by `CANDIDATES`.
+                point.update(radii=rr.Radius.ui_points(5.0), show_labels=False)
+            if shown is None or shown.label != label:
+                point["labels"] = [label]
+            self.rec.log(e.landmark_path(landmark_id), rr.Points3D.from_fields(**point))
+        else:
+            position = shown.position
+        ellipsoid = None if shown is None else shown.ellipsoid
+        if world is not None and (covariance is not None or ellipsoid is None):
+            ellipsoid = draw.ellipsoid(world, self.config.ellipsoid_confidence)
+        self._landmarks[landmark_id] = _Shown(position, label, c, world, ellipsoid)
+
+    def _log_uncertainty(self) -> None:
+        """Every landmark's ellipsoid as last shown, in one entity (a layer hidden by default,
+        so one call a refresh rather than one a landmark a keyframe)."""
+        shown = [(j, s) for j, s in sorted(self._landmarks.items()) if s.ellipsoid is not None]
+        if not shown:
+            return
+        self.rec.log(
+            e.UNCERTAINTY,
+            rr.Ellipsoids3D(
+                centers=[s.position for _, s in shown],
+                half_sizes=[s.ellipsoid[0] for _, s in shown],
+                quaternions=[s.ellipsoid[1] for _, s in shown],
+                colors=self._colours[[s.class_id for _, s in shown]],
+                labels=[f"L{j}" for j, _ in shown],
+                show_labels=False,
+                fill_mode="MajorWireframe",
+                line_radii=rr.Radius.ui_points(ELLIPSOID_LINE_PT),
+            ),
+        )
 
     def _refresh(self, backend: Backend, pose_index: int) -> None:
         """Send the held rows; then the whole trajectory, and every landmark that moved or
@@ -452,7 +536,7 @@ class RerunSink:
         ids = set(backend.landmarks.landmarks)
         poses, points = self._fetch(backend, set(range(pose_index + 1)), ids)
         positions = [poses[i][9:] for i in range(pose_index + 1)]
-        self.rec.log(e.TRAJECTORY, self._trajectory(positions, TRAJECTORY_RGB, "estimate"))
+        self.rec.log(e.TRAJECTORY, self._trajectory(positions, draw.ESTIMATE_RGB, "estimate"))
         self.rec.log(e.TRAJECTORY_RECENT, rr.Clear(recursive=False))
         self._positions = positions
         self._refreshed_at = pose_index
@@ -467,6 +551,7 @@ class RerunSink:
                 self._log_landmark(backend.landmarks, int(j), points[int(j)], None)
         for j in sorted(ids - set(shown)):
             self._log_landmark(backend.landmarks, j, points[j], None)
+        self._log_uncertainty()
 
     def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
         started = time.perf_counter()
@@ -474,12 +559,25 @@ class RerunSink:
         i = report.pose_index
         stamp = self._stamp(i)
         self._set_time(i, stamp)
-        # Landmark ids are consecutive: ids from the count before this keyframe are new ones.
+        for duplicate, _ in report.merged:  # drawn now as the landmark it was merged into
+            self.rec.log(e.landmark_path(duplicate), rr.Clear(recursive=True))
+            self._landmarks.pop(duplicate, None)
+        # Landmark ids are never reused: ids from the next one before this keyframe are new.
         hypotheses = [
             draw.detection_hypotheses(r, c, r.landmark_id >= self._landmark_total)
             for r, c in zip(report.records, report.candidates, strict=True)
         ]
-        self._landmark_total = len(backend.landmarks)
+        self._landmark_total = backend.landmarks.next_id
+        resolve = backend.landmarks.resolve
+        hypotheses = [
+            [
+                dataclasses.replace(h, landmark_id=resolve(h.landmark_id))
+                if h.landmark_id != NULL
+                else h
+                for h in hs
+            ]
+            for hs in hypotheses
+        ]
         touched = {h.landmark_id for hs in hypotheses for h in hs if h.landmark_id != NULL}
         for record in report.switched:
             touched.update(record.landmark_ids)
@@ -506,19 +604,39 @@ class RerunSink:
                 covariance = backend.solver.marginal_covariance(L(j))
             self._log_landmark(backend.landmarks, j, points[j], covariance, unless_unchanged=True)
 
-        self._log_hypotheses(report.records, hypotheses, row, points)
+        self._log_hypotheses(report.records, hypotheses, row, points, backend.landmarks)
         self._log_associations(report, poses, points)
         self._log_image(i, [(r.measurement.detection, r.landmark_id) for r in report.records])
 
         held = self._held.scalars
-        if i in self._truth:
-            held[e.ERROR_ONLINE].append((i, stamp, float(np.linalg.norm(row[9:] - self._truth[i]))))
+        error = float(np.linalg.norm(row[9:] - self._truth[i])) if i in self._truth else None
+        if error is not None:
+            held[e.ERROR_ONLINE].append((i, stamp, error))
         held[e.LANDMARK_COUNT].append((i, stamp, len(backend.landmarks)))
         held[e.SWITCH_COUNT].append((i, stamp, backend.switches))
-        if self._winners:
-            held[e.NULL_RATE].append((i, stamp, self._null_count / len(self._winners)))
-        held[e.STEP_MS].append((i, stamp, 1e3 * report.seconds))
-        held[e.VIZ_MS].append((i, stamp, 1e3 * (time.perf_counter() - started)))
+        rate = self._null_count / len(self._winners) if self._winners else 0.0
+        held[e.NULL_RATE].append((i, stamp, rate))
+        state = self._state(i, len(backend.landmarks), backend.switches, error_m=error)
+        self._held.markdown[e.SUMMARY].append((i, stamp, summary_markdown(state)))
+        window = self.config.smoothing_window
+        self._step_ms.append(1e3 * report.seconds)
+        held[e.STEP_MS].append((i, stamp, draw.trailing_median(self._step_ms, window)))
+        self._viz_ms.append(1e3 * (time.perf_counter() - started))
+        held[e.VIZ_MS].append((i, stamp, draw.trailing_median(self._viz_ms, window)))
+
+    def _state(
+        self, pose_index: int, landmarks: int, switches: int, error_m: float | None = None
+    ) -> RunState:
+        return RunState(
+            method=self._method,
+            pose_index=pose_index,
+            num_poses=len(self._stamps_ns),
+            detections=len(self._winners),
+            landmarks=landmarks,
+            switches=switches,
+            nulls=self._null_count,
+            error_m=error_m,
+        )
 
     def _log_hypotheses(
         self,
@@ -526,10 +644,12 @@ class RerunSink:
         hypotheses: list[list[draw.Hypothesis]],
         pose_row: np.ndarray,
         points: dict[int, np.ndarray],
+        landmarks: LandmarkMap,
     ) -> None:
         """Per detection, a line from the pose to every landmark it may be, or to where it puts
-        its landmark for the null hypothesis; width by weight, the winner bright. The measured
-        points are drawn too, coloured by reported class."""
+        its landmark for the null hypothesis; width by weight, the winner bright, each labelled
+        with its weight. The measured points are drawn too, coloured by reported class, and the
+        landmarks weighed are labelled with their id, class and its probability."""
         strips, colours, widths, labels, flat = [], [], [], [], []
         origin = pose_row[9:]
         measured = np.zeros((len(records), 3))
@@ -552,9 +672,9 @@ class RerunSink:
                 ),
                 rr.Points3D(
                     measured,
-                    colors=self._colours[classes],
                     class_ids=classes,
                     radii=rr.Radius.ui_points(3.0),
+                    show_labels=False,  # else each would carry its class name
                 ),
                 # One value per line: for the selection panel, and for reading the recording.
                 rr.AnyValues(
@@ -565,6 +685,44 @@ class RerunSink:
                 ),
             )
         self._clear_unless(e.HYPOTHESES, bool(flat))
+        weighed = sorted({h.landmark_id for h in flat if h.landmark_id != NULL})
+        if weighed:
+            named = [self._landmark_label(landmarks, j) for j in weighed]
+            classes = [c for c, _ in named]
+            centres = [points[j][9:] for j in weighed]
+            parts: list[Any] = [
+                rr.Points3D(
+                    centres,
+                    class_ids=classes,
+                    labels=[label for _, label in named],
+                    radii=rr.Radius.ui_points(6.0),
+                    show_labels=True,
+                )
+            ]
+            # Their uncertainty, as the association step saw it: only these, so that the map
+            # stays readable (every landmark's is in `UNCERTAINTY`, hidden by default).
+            shaped = [
+                (centre, self._landmarks[j].ellipsoid, c)
+                for j, centre, c in zip(weighed, centres, classes, strict=True)
+                if self._landmarks[j].ellipsoid is not None
+            ]
+            if shaped:
+                parts.append(
+                    rr.Ellipsoids3D(
+                        centers=[centre for centre, _, _ in shaped],
+                        half_sizes=[shape[0] for _, shape, _ in shaped],
+                        quaternions=[shape[1] for _, shape, _ in shaped],
+                        colors=self._colours[[c for _, _, c in shaped]],
+                        fill_mode="MajorWireframe",
+                        line_radii=rr.Radius.ui_points(1.0),
+                    )
+                )
+            self.rec.log(e.CANDIDATES, *parts)
+        self._clear_unless(e.CANDIDATES, bool(weighed))
+
+    def _event(self, event: events.Event | None) -> None:
+        if event is not None:
+            self.rec.log(e.EVENTS, rr.TextLog(event.text, level=LEVELS[event.level]))
 
     def _log_associations(
         self,
@@ -576,34 +734,38 @@ class RerunSink:
         i = report.pose_index
         null_points, null_labels = [], []
         strips, strip_labels = [], []
+        earlier = 0
         # Switches first: they change what was shown for detections of earlier keyframes.
         for record in report.switched:
             m = record.measurement
             key = (m.pose_index, m.detection_index)
             winner = record.landmark_id
             previous = self._winners.get(key)  # None: the detection is this keyframe's own
-            if previous is not None:
-                self._null_count += (winner == NULL) - (previous == NULL)
-                self._winners[key] = winner
+            self._changes[key] += 1
+            if previous is None:
+                # Its hypothesis lines show where it went; one gone to the null hypothesis is
+                # told below.
+                if winner != NULL:
+                    self._event(events.changed(i, *key, None, winner))
+                continue
+            earlier += 1
+            self._null_count += (winner == NULL) - (previous == NULL)
+            self._winners[key] = winner
             pose_row = poses[m.pose_index]
             measured = draw.body_to_world(pose_row, m.body_point)[0]
             strips.append(
                 np.array([pose_row[9:], measured if winner == NULL else points[winner][9:]])
             )
-            was = "" if previous is None else _name(previous)
-            strip_labels.append(f"p{m.pose_index} d{m.detection_index}: {was}→{_name(winner)}")
-            if winner == NULL and previous is not None:
+            strip_labels.append(
+                f"p{key[0]} d{key[1]}: {events.name(previous)}→{events.name(winner)}"
+            )
+            if winner == NULL:
                 null_points.append(measured)
                 null_labels.append(f"p{m.pose_index} d{m.detection_index}")
-            when = "within its keyframe" if previous is None else f"from {was}"
-            self.rec.log(
-                e.EVENTS,
-                rr.TextLog(
-                    f"pose {i}: detection {m.detection_index} of pose {m.pose_index} switched "
-                    f"{when} to {_name(winner)} (switch {record.switches})",
-                    level="WARN",
-                ),
-            )
+            self._event(events.changed(i, *key, previous, winner))
+            limit = self.config.warn_changes_per_detection
+            self._event(events.unsettled(i, *key, self._changes[key], limit))
+        self._event(events.many_changed(i, earlier, self.config.warn_changes_at_once))
         for record in report.records:
             m = record.measurement
             self._winners[(m.pose_index, m.detection_index)] = record.landmark_id
@@ -612,17 +774,8 @@ class RerunSink:
             self._null_count += 1
             null_points.append(draw.body_to_world(poses[i], m.body_point)[0])
             null_labels.append(f"p{m.pose_index} d{m.detection_index}")
-            rivals = ", ".join(
-                f"L{j} {w:.2f}" for j, w in zip(record.landmark_ids, record.weights, strict=True)
-            )
-            self.rec.log(
-                e.EVENTS,
-                rr.TextLog(
-                    f"pose {i}: detection {m.detection_index} went to the null hypothesis "
-                    f"(weight {record.null_weight:.2f}; candidates {rivals or 'none'})",
-                    level="WARN",
-                ),
-            )
+            candidates = list(zip(record.landmark_ids, record.weights, strict=True))
+            self._event(events.null_win(i, m.detection_index, candidates, record.null_weight))
         if null_points:
             self.rec.log(
                 e.NULL_WINS,
@@ -631,6 +784,7 @@ class RerunSink:
                     colors=draw.packed_rgba(draw.NULL_WINNER_RGB)[None],
                     radii=rr.Radius.ui_points(7.0),
                     labels=null_labels,
+                    show_labels=False,  # the lines and the event log say it; hover for more
                 ),
             )
         self._clear_unless(e.NULL_WINS, bool(null_points))
@@ -660,11 +814,13 @@ class RerunSink:
         self._log_boxes([(d, winner) for d, winner in detections if d.bbox is not None])
 
     def _log_boxes(self, boxes: list[tuple[Detection, int | None]]) -> None:
+        """Boxes coloured by reported class, labelled with class, score, range and (on replay)
+        the landmark each went to."""
         if boxes:
-            labels = []
-            for detection, winner in boxes:
-                label = f"{self._class_names[detection.class_id]} {detection.score:.2f}"
-                labels.append(label if winner is None else f"{label} → {_name(winner)}")
+            labels = [
+                draw.detection_label(d, self._class_names[d.class_id], winner)
+                for d, winner in boxes
+            ]
             self.rec.log(
                 e.CAMERA_DETECTIONS,
                 rr.Boxes2D(
@@ -684,12 +840,13 @@ class RerunSink:
         last = len(result.poses) - 1
         self._set_time(last, self._stamp(last))
         rows = np.array([_row(p) for p in result.poses])
-        self.rec.log(e.TRAJECTORY, self._trajectory(rows[:, 9:], TRAJECTORY_RGB, "estimate"))
+        self.rec.log(e.TRAJECTORY, self._trajectory(rows[:, 9:], draw.ESTIMATE_RGB, "estimate"))
         self.rec.log(e.TRAJECTORY_RECENT, rr.Clear(recursive=False))
         fresh = self.config.final_marginals and self._backend is not None
         for j, value in zip(result.landmark_ids, result.landmark_values, strict=True):
             covariance = self._backend.solver.marginal_covariance(L(j)) if fresh else None
             self._log_landmark(result.landmarks, j, _row(value), covariance)
+        self._log_uncertainty()
 
         indices = np.array(sorted(k for k in self._truth if k <= last), dtype=int)
         if len(indices):
@@ -714,15 +871,22 @@ class RerunSink:
                     colors=draw.packed_rgba(draw.NULL_WINNER_RGB)[None],
                     radii=rr.Radius.ui_points(5.0),
                     labels=[f"p{m.pose_index} d{m.detection_index}" for m in rejected],
+                    show_labels=False,
                 ),
             )
-        summary = _summary(result, metrics)
-        self.rec.log(e.SUMMARY, rr.TextDocument(summary, media_type="text/markdown"))
+        state = self._state(last, len(result.landmark_ids), result.switches)
+        text = summary_markdown(state, metrics)
+        self.rec.log(e.SUMMARY, rr.TextDocument(text, media_type="text/markdown"))
         self._finished = True
 
     # ------------------------------------------------------------------------------- frontend
-    def frontend_start(self, metadata: LogMetadata) -> None:
-        self._begin(frontend_blueprint(), "mmslam frontend", metadata.class_names)
+    def frontend_start(self, metadata: LogMetadata, extent: np.ndarray | None = None) -> None:
+        legend = [
+            *draw.class_legend(metadata.class_names),
+            draw.LegendItem("visual odometry", draw.ESTIMATE_RGB, True),
+        ]
+        blueprint = frontend_blueprint(extent, len(legend))
+        self._begin(blueprint, "mmslam frontend", metadata.class_names, legend)
         self._trail_style(e.VO_TRAJECTORY_RECENT)
         self._series(e.TAG_COUNT, "tags", (31, 119, 180))
         self._series(e.BOX_COUNT, "boxes", (255, 127, 14))
@@ -735,8 +899,7 @@ class RerunSink:
         self._positions.append(keyframe.body_pose[:3, 3].copy())
         if i - self._refreshed_at >= self.config.refresh_every:
             self._held.send(self.rec, e.ROBOT)
-            self.rec.log(e.VO_TRAJECTORY, self._trajectory(self._positions, TRAJECTORY_RGB, "VO"))
-            self.rec.log(e.VO_TRAJECTORY_RECENT, rr.Clear(recursive=False))
+            self._log_vo_trajectory()
             self._refreshed_at = i
         elif i > self._refreshed_at:
             recent = np.array(self._positions[self._refreshed_at :])
@@ -754,20 +917,20 @@ class RerunSink:
             held[e.VO_INLIERS].append((i, stamp, keyframe.step.inliers))
 
     def _log_body_detections(self, detections: list[Detection]) -> None:
-        """A keyframe's detections in the body frame: children of the robot."""
+        """A keyframe's detections in the body frame (children of the robot), coloured by class
+        and labelled with class, score and range."""
         if detections:
             body = point_from_bearing_elevation_range(
                 np.array([[d.bearing, d.elevation, d.range] for d in detections])
             )
-            classes = [d.class_id for d in detections]
+            names = self._class_names
             self.rec.log(
                 e.ROBOT_DETECTIONS,
                 rr.Points3D(
                     body,
-                    colors=self._colours[classes],
-                    class_ids=classes,
-                    labels=[f"d{k}" for k in range(len(detections))],
-                    radii=rr.Radius.ui_points(3.0),
+                    class_ids=[d.class_id for d in detections],
+                    labels=[draw.detection_label(d, names[d.class_id]) for d in detections],
+                    radii=rr.Radius.ui_points(4.0),
                 ),
             )
         self._clear_unless(e.ROBOT_DETECTIONS, bool(detections))
@@ -781,29 +944,44 @@ class RerunSink:
             self.rec.log(
                 e.CAMERA, rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
             )
-        outlines = [np.vstack([t.corners, t.corners[:1]]) for t in keyframe.tags]
-        if outlines:
+        tags = keyframe.tags
+        if tags:
             self.rec.log(
                 e.CAMERA_TAGS,
                 rr.LineStrips2D(
-                    outlines,
-                    labels=[f"tag {t.tag_id}" for t in keyframe.tags],
-                    colors=draw.packed_rgba((255, 60, 200))[None],
+                    [np.vstack([t.corners, t.corners[:1]]) for t in tags],
+                    labels=[
+                        f"tag {t.tag_id}"
+                        if t.detection is None
+                        else draw.detection_label(t.detection, f"tag {t.tag_id}")
+                        for t in tags
+                    ],
+                    colors=[
+                        draw.packed_rgba(draw.ESTIMATE_RGB)
+                        if t.detection is None
+                        else self._colours[t.detection.class_id]
+                        for t in tags
+                    ],
+                    radii=rr.Radius.ui_points(2.0),
                 ),
             )
-        self._clear_unless(e.CAMERA_TAGS, bool(outlines))
+        self._clear_unless(e.CAMERA_TAGS, bool(tags))
         # Tags are drawn by their outlines where the front-end gave them; boxes for the rest.
-        outlined = "apriltag" if keyframe.tags else None
+        outlined = {id(t.detection) for t in tags if t.detection is not None}
         self._log_boxes(
-            [(d, None) for d in keyframe.detections if d.bbox is not None and d.source != outlined]
+            [(d, None) for d in keyframe.detections if d.bbox is not None and id(d) not in outlined]
         )
 
     def frontend_finish(self) -> None:
         self._held.send(self.rec, e.ROBOT)
         if self._positions:
-            self.rec.log(e.VO_TRAJECTORY, self._trajectory(self._positions, TRAJECTORY_RGB, "VO"))
-            self.rec.log(e.VO_TRAJECTORY_RECENT, rr.Clear(recursive=False))
+            self._log_vo_trajectory()
         self._finished = True
+
+    def _log_vo_trajectory(self) -> None:
+        trajectory = self._trajectory(self._positions, draw.ESTIMATE_RGB, "visual odometry")
+        self.rec.log(e.VO_TRAJECTORY, trajectory)
+        self.rec.log(e.VO_TRAJECTORY_RECENT, rr.Clear(recursive=False))
 
     # ---------------------------------------------------------------------------------- close
     def close(self) -> None:
@@ -827,30 +1005,3 @@ class RerunSink:
             logger.info("the run did not finish: no recording written to %s", self.target)
         if self._discard_at_exit is not None:
             self._discard_at_exit.detach()
-
-
-def _summary(result: BackendResult, metrics: dict[str, Any] | None) -> str:
-    lines = [
-        "# Run summary",
-        "",
-        f"- poses: {len(result.poses)}",
-        f"- detections: {len(result.records)}",
-        f"- landmarks: {len(result.landmark_ids)}",
-        f"- association switches: {result.switches}",
-        f"- left to the null hypothesis: {sum(r.landmark_id == NULL for r in result.records)}",
-    ]
-    if metrics:
-        t, r = metrics["translation_error_m"], metrics["rotation_error_rad"]
-        a = metrics["association"]
-        lines += [
-            "",
-            "| error | max | mean | median | rmse |",
-            "|---|---|---|---|---|",
-            f"| translation (m) | {t['max']:.3f} | {t['mean']:.3f} | {t['median']:.3f} "
-            f"| {t['rmse']:.3f} |",
-            f"| rotation (rad) | {r['max']:.4f} | {r['mean']:.4f} | {r['median']:.4f} "
-            f"| {r['rmse']:.4f} |",
-            "",
-            f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
-        ]
-    return "\n".join(lines)

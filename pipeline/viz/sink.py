@@ -37,3 +37,27 @@ class NullSink:
 
     def close(self) -> None:
         pass
+
+
+class TeeSink:
+    """Several sinks as one (a Rerun recording and a Foxglove file, say)."""
+
+    def __init__(self, sinks: list[Sink]):
+        self.sinks = sinks
+        self.wants_images = any(s.wants_images for s in sinks)
+
+    def start(self, log: DetectionLog, method: str) -> None:
+        for sink in self.sinks:
+            sink.start(log, method)
+
+    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+        for sink in self.sinks:
+            sink.keyframe(report, backend)
+
+    def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
+        for sink in self.sinks:
+            sink.finish(result, metrics)
+
+    def close(self) -> None:
+        for sink in self.sinks:
+            sink.close()

@@ -10,11 +10,11 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import class_posterior_update
-from pipeline.backend.candidates import Candidates, PosePrediction
+from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
 from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
 from pipeline.backend.landmarks import LandmarkMap
 from pipeline.backend.measurements import Measurement
-from pipeline.backend.movement import MovementTracker
+from pipeline.backend.movement import MovementTracker, is_landmark_key, key_index
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 
@@ -28,10 +28,35 @@ class BackendContext:
     confusion: np.ndarray
     config: Config
     prediction: PosePrediction | None = None
+    keyframe_covariance: KeyframeCovariance | None = None  # of the keyframe being added
     movement: MovementTracker = field(init=False)
+    # Every record that has a landmark among its components, by landmark id.
+    records_of: dict[int, list[AssociationRecord]] = field(
+        init=False, default_factory=lambda: defaultdict(list)
+    )
+    last_seen: dict[int, int] = field(init=False, default_factory=dict)  # latest pose index
 
     def __post_init__(self) -> None:
         self.movement = MovementTracker(self.config.isam2.relinearize_threshold)
+
+    def register(self, record: AssociationRecord) -> None:
+        """Index a new record by the landmarks it may be; the one it is was seen now."""
+        for j in record.landmark_ids:
+            self.records_of[j].append(record)
+        self.seen(record)
+
+    def seen(self, record: AssociationRecord) -> None:
+        j, pose = record.landmark_id, record.measurement.pose_index
+        if j >= 0:
+            self.last_seen[j] = max(self.last_seen.get(j, pose), pose)
+
+    def observed_at(self, landmark_id: int) -> set[int]:
+        """Pose indices of the detections now associated with the landmark."""
+        return {
+            r.measurement.pose_index
+            for r in self.records_of.get(landmark_id, ())
+            if r.landmark_id == landmark_id
+        }
 
     def create_landmark(self, m: Measurement) -> int:
         """A new landmark initialised from the detection, with its factor and class evidence."""
@@ -62,11 +87,14 @@ class BackendContext:
         column = self.confusion[:, m.detection.class_id]
         lms = [self.landmarks.landmarks[j] for j in landmark_ids]
         semantic = np.array([column @ lm.class_probabilities for lm in lms])
-        # A null hypothesis says nothing about which landmark: the report under a uniform class.
-        total = float(np.dot(weights, semantic)) + null_weight * float(column.mean())
+        weights = np.asarray(weights, dtype=float)
+        # The association weights already hold each landmark's semantic likelihood; dividing
+        # it out leaves the rest of the association's evidence, so that the report is counted
+        # once: evidence(c) = (w_k / s_k) P(report | c) + (the other associations' weight).
+        total = float(weights.sum()) + null_weight
         for lm, w, s in zip(lms, weights, semantic, strict=True):
             lm.class_probabilities = class_posterior_update(
-                lm.class_probabilities, column, float(w), total - float(w) * s
+                lm.class_probabilities, column, float(w) / float(s), total - float(w)
             )
 
     def estimates(self, prediction: PosePrediction | None = None) -> EstimateCache:
@@ -83,6 +111,10 @@ class BackendContext:
 
         A variable that iSAM2 did not mark kept its linearisation point, so the factors on it,
         and the component a max-mixture would choose, are as they were."""
+        # A landmark merged into another is no longer in iSAM2.
+        marked = {
+            k for k in marked if not is_landmark_key(k) or key_index(k) in self.landmarks.landmarks
+        }
         moved, positions = self.movement.moved(self.solver, marked, self.landmarks.is_pose)
         for landmark_id, position in positions.items():
             self.landmarks.move(landmark_id, position)
@@ -102,6 +134,17 @@ class AssociationMethod(ABC):
     @abstractmethod
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         """Add the detection's factors (pending in the solver) and return its record."""
+
+    def associate_keyframe(
+        self, measurements: list[Measurement], candidates: list[Candidates]
+    ) -> list[AssociationRecord]:
+        """All the detections of one keyframe; by default one at a time."""
+        return [self.associate(m, c) for m, c in zip(measurements, candidates, strict=True)]
+
+    @property
+    def wants_joint(self) -> bool:
+        """Whether `associate_keyframe` needs the keyframe's joint covariance."""
+        return False
 
     def refine(self, moved: set[int]) -> list[AssociationRecord]:
         """After an iSAM2 update that moved `moved`: revisit associations; returns the records
@@ -128,13 +171,21 @@ class MixtureMethod(AssociationMethod):
         super().__init__(context)
         self._records: list[AssociationRecord] = []
         self._by_key: dict[int, list[int]] = defaultdict(list)
+        self._index_of: dict[int, int] = {}  # id(record) -> its index in _records
 
     def track(self, record: AssociationRecord) -> AssociationRecord:
         index = len(self._records)
         self._records.append(record)
+        self._index_of[id(record)] = index
         for key in record.keys:
             self._by_key[key].append(index)
         return record
+
+    def retrack(self, record: AssociationRecord, key: int) -> None:
+        """A tracked record now also has `key` among its variables (after a merge)."""
+        index = self._index_of.get(id(record))
+        if index is not None and index not in self._by_key[key]:
+            self._by_key[key].append(index)
 
     def affected(self, moved: set[int]) -> list[AssociationRecord]:
         """Tracked records with a variable among `moved`, in creation order."""

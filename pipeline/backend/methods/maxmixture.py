@@ -2,22 +2,42 @@
 
 A detection's factor is max_k w_k N(h(x, l_k) - z; 0, Gamma): the component with the smallest
 negative log-likelihood, normalisers included, is the one in the graph. With the null
-hypothesis, a component of weight `null_weight` and standard deviation `null_sigma` competes:
+hypothesis, a component of weight `null_weight` competes (`decisions.py` says what it costs):
 when it wins, the detection pulls on nothing, and a wrong loop closure is rejected.
-See `pipeline/backend/hypotheses.py` for how the component is kept current.
+
+The component is first chosen where the factor is first linearised, at the predicted pose
+(`[mixture] first_choice = "prediction"`), and revisited after every update that moves its
+variables (`pipeline/backend/hypotheses.py`). With mmslam's defaults, a detection whose null
+wins at the prediction starts a landmark of its own instead of pulling on nothing, and
+`merge` joins such landmarks to the ones they duplicate once a joint test is sure of it.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import with_null_hypothesis
-from pipeline.backend.candidates import Candidates
+from pipeline.backend.candidates import Candidates, KeyframeCovariance
+from pipeline.backend.decisions import (
+    MeasurementSpace,
+    clutter_log_density,
+    first_component,
+    null_cost,
+)
 from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
+from pipeline.backend.joint_association import (
+    NONE,
+    DetectionOptions,
+    KeyframeProblem,
+    associate_keyframe,
+)
+from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import BackendContext, MixtureMethod
-from pipeline.backend.mixture import component_nll, null_component_nll
+from pipeline.backend.mixture import component_nll
 from pipeline.backend.mixture_factor import MaxMixtureFactor, component
 
 
@@ -28,10 +48,31 @@ class MaxMixture(MixtureMethod):
         super().__init__(context)
         a = self.config.association
         self.null_weight = a.null_weight if null_hypothesis else 0.0
-        self.null_sigma = a.null_sigma
         self.name = "mm-nh" if null_hypothesis else "mm"
         self.in_factor = self.config.mixture.selection == "custom-factor"
+        choice = self.config.mixture.first_choice
+        self.jointly = choice == "joint" and null_hypothesis and not self.in_factor
+        self.at_prediction = choice in ("joint", "prediction")
         self._mixture_factors: list[tuple[AssociationRecord, MaxMixtureFactor]] = []
+        self.space = {kind: MeasurementSpace() for kind in LandmarkKind}
+
+    @property
+    def wants_joint(self) -> bool:
+        return self.jointly
+
+    @property
+    def merges_landmarks(self) -> bool:
+        return self.null_weight > 0 and self.config.merges.enabled and not self.in_factor
+
+    def null_nll(self, m: Measurement) -> float:
+        """The null component's cost for this detection (inf without a null hypothesis)."""
+        if self.null_weight <= 0:
+            return math.inf
+        a = self.config.association
+        return null_cost(
+            a.null_model, self.null_weight, a.null_sigma, a.null_crossover_sq, m.dim,
+            m.log_normaliser,
+        )  # fmt: skip
 
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         if len(candidates) == 0:
@@ -40,22 +81,112 @@ class MaxMixture(MixtureMethod):
         if self.null_weight > 0:
             weights, _ = with_null_hypothesis(weights, self.null_weight)
         ids = [int(j) for j in candidates.landmark_ids]
-        self.context.observe_classes(m, ids, weights, self.null_weight)
-        record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=NULL)
-        if not record.is_mixture:
-            record.active = 0
-            record.handles = [self.context.add_factor(m, ids[0])]
-            return record
         if self.in_factor:
+            self.context.observe_classes(m, ids, weights, self.null_weight)
+            record = AssociationRecord(m, ids, weights, null_weight=self.null_weight)
             return self._custom_factor(record)
-        # The first choice is the most probable association, the pose and landmarks
-        # marginalised out (the weights); measured at the predicted pose alone, a detection
-        # after a large odometry error would look like an outlier to every landmark.
-        best = int(np.argmax(weights))
-        record.active = NULL if self.null_weight > weights[best] else best
+        if self.at_prediction:
+            first = first_component(weights, candidates.fit_sq, m.log_normaliser, self.null_nll(m))
+            if first == NULL and self.merges_landmarks:
+                # Nothing fits where the odometry puts the detection: a landmark of its own,
+                # until a merge shows which landmark it duplicates.
+                return self.new_landmark(m)
+        else:
+            # The most probable association, pose and landmarks marginalised out (the weights).
+            best = int(np.argmax(weights))
+            first = NULL if self.null_weight > weights[best] else best
+        self.context.observe_classes(m, ids, weights, self.null_weight)
+        record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=first)
         if record.active != NULL:
             record.handles = [self.context.add_factor(m, ids[record.active])]
-        return self.track(record)
+        return self.track(record) if record.is_mixture else record
+
+    def associate_keyframe(
+        self, measurements: list[Measurement], candidates: list[Candidates]
+    ) -> list[AssociationRecord]:
+        """The keyframe's detections chosen together (`joint_association.py`): a pairing that
+        is best and unambiguous becomes the record's first component; every other detection
+        starts a landmark of its own."""
+        for m in measurements:
+            if m.kind is LandmarkKind.POINT:
+                self.space[m.kind].observe(m.vector, m.covariance)
+        joint = self.context.keyframe_covariance
+        if not self.jointly or joint is None or not any(len(c) for c in candidates):
+            return super().associate_keyframe(measurements, candidates)
+        a = self.config.association
+        options = [
+            self._options(m, c, joint) for m, c in zip(measurements, candidates, strict=True)
+        ]
+        kept = [np.arange(len(c)) for c in candidates]  # candidate index of each option
+        since = measurements[0].pose_index - self.config.merges.recent_keyframes
+        while True:
+            problem = KeyframeProblem(
+                detections=[o.subset(k) for o, k in zip(options, kept, strict=True)],
+                covariance=joint.matrix,
+                block_offsets=np.array(list(joint.offsets.values())),
+                block_dims=np.diff([*joint.offsets.values(), joint.matrix.shape[0]]),
+                gate_confidence=a.joint_confidence,
+            )
+            decision = associate_keyframe(problem, a.ambiguity_log_odds, a.max_search_nodes)
+            chosen = [
+                int(kept[i][k]) if k != NONE and unique else NONE
+                for i, (k, unique) in enumerate(
+                    zip(decision.assignment, decision.unique, strict=True)
+                )
+            ]
+            # A loop is closed by two landmarks agreeing, or by a merge later (`merges.py`):
+            # a lone loop-closing pairing is taken out, and the keyframe decided again.
+            loops = [
+                i
+                for i, k in enumerate(chosen)
+                if k != NONE
+                and self.context.last_seen.get(int(candidates[i].landmark_ids[k]), -1) <= since
+            ]
+            if not loops or len(loops) >= a.min_loop_pairs:
+                break
+            for i in loops:
+                kept[i] = kept[i][kept[i] != chosen[i]]
+        records = []
+        for m, c, k in zip(measurements, candidates, chosen, strict=True):
+            if k == NONE:
+                records.append(self.new_landmark(m))
+                continue
+            weights, _ = with_null_hypothesis(c.weights, self.null_weight)
+            ids = [int(j) for j in c.landmark_ids]
+            self.context.observe_classes(m, ids, weights, self.null_weight)
+            record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=k)
+            record.handles = [self.context.add_factor(m, ids[k])]
+            records.append(self.track(record))
+        return records
+
+    def _null_log_density(self, m: Measurement) -> float:
+        """A point detection's null: a new landmark or clutter, anywhere in the measurement
+        space; a pose landmark's: the max-mixture's null (`null_nll`)."""
+        if m.kind is not LandmarkKind.POINT:
+            return -self.null_nll(m)
+        report = float(self.context.confusion[:, m.detection.class_id].mean())
+        volume = self.space[m.kind].log_volume()
+        return clutter_log_density(self.null_weight, report, volume)
+
+    def _options(
+        self, m: Measurement, c: Candidates, joint: KeyframeCovariance
+    ) -> DetectionOptions:
+        slot_of = {j: s for s, j in enumerate(joint.offsets)}
+        if len(c) == 0:
+            empty = np.zeros((0, m.dim))
+            return DetectionOptions(
+                empty, np.zeros((0, m.dim, 6)), np.zeros((0, m.dim, 3)), np.zeros(0, dtype=int),
+                np.zeros(0), m.covariance, self._null_log_density(m),
+            )  # fmt: skip
+        return DetectionOptions(
+            residuals=c.residuals,
+            pose_jacobians=c.pose_jacobians,
+            landmark_jacobians=c.landmark_jacobians,
+            slots=np.array([slot_of[int(j)] for j in c.landmark_ids]),
+            log_prior=np.log((1.0 - self.null_weight) * c.semantic),
+            covariance=m.covariance,
+            null_log_density=self._null_log_density(m),
+        )
 
     def _custom_factor(self, record: AssociationRecord) -> AssociationRecord:
         """The mixture as one CustomFactor choosing at every linearisation (no `refine`)."""
@@ -64,9 +195,7 @@ class MaxMixture(MixtureMethod):
             component(m.factor(X(m.pose_index), L(j)), float(w))
             for j, w in zip(record.landmark_ids, record.weights, strict=True)
         ]
-        mixture = MaxMixtureFactor(
-            X(m.pose_index), components, m.dim, self.null_weight, self.null_sigma
-        )
+        mixture = MaxMixtureFactor(X(m.pose_index), components, m.dim, self.null_nll(m))
         record.handles = [self.context.solver.add(mixture.factor())]
         record.active = int(np.argmax(record.weights))
         self._mixture_factors.append((record, mixture))
@@ -94,7 +223,7 @@ class MaxMixture(MixtureMethod):
             m = record.measurement
             row[: len(maha)] = component_nll(np.log(record.weights), maha, m.log_normaliser)
             if record.null_weight > 0:
-                row[-1] = null_component_nll(record.null_weight, self.null_sigma, m.dim)
+                row[-1] = self.null_nll(m)
         best = np.argmin(table, axis=1)
         return [NULL if b == table.shape[1] - 1 else int(b) for b in best]
 
@@ -127,3 +256,36 @@ class MaxMixture(MixtureMethod):
             changed += switched
             moved = self.context.after_update(solver.update())
         return changed
+
+    def merge(self, survivor: int, duplicate: int) -> None:
+        """Make `duplicate` one with `survivor`: every record that may be the duplicate now
+        may be the survivor instead (components joined, weights summed), its factors
+        re-pointed; the duplicate's variable leaves iSAM2 with its last factor."""
+        context = self.context
+        lms = context.landmarks.landmarks
+        product = lms[survivor].class_probabilities * lms[duplicate].class_probabilities
+        if product.sum() > 0:  # both posteriors hold the prior once too much; it is uniform
+            lms[survivor].class_probabilities = product / product.sum()
+        for record in context.records_of.pop(duplicate, []):
+            context.remove_factors(record)
+            active = record.landmark_id if record.active != NULL else NULL
+            ids = [survivor if j == duplicate else j for j in record.landmark_ids]
+            unique = list(dict.fromkeys(ids))
+            weights = np.zeros(len(unique))
+            for j, w in zip(ids, record.weights, strict=True):
+                weights[unique.index(j)] += w
+            record.landmark_ids, record.weights = unique, weights
+            record.active = (
+                NULL
+                if active == NULL
+                else unique.index(survivor if active == duplicate else active)
+            )
+            if record.active != NULL:
+                record.handles = [context.add_factor(record.measurement, unique[record.active])]
+            if record not in context.records_of[survivor]:
+                context.records_of[survivor].append(record)
+            self.retrack(record, L(survivor))
+        context.last_seen[survivor] = max(
+            context.last_seen.get(survivor, -1), context.last_seen.pop(duplicate, -1)
+        )
+        context.landmarks.merge(duplicate, survivor)

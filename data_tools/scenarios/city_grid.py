@@ -1,0 +1,375 @@
+"""city-grid: an aliased city, a regular grid of streets lined with regularly parked vehicles.
+
+The world: streets on a regular grid (`grid`), a route that covers every street and then
+drives them again in overlapping loops (`route`), and vehicles in parking slots at a regular
+spacing along both kerbs, a slot occupied at random (`parking`). Every block looks like every
+other: what tells two streets apart is the odometry, the pattern of empty slots and the vehicle
+classes, and the detector confuses classes. Buildings fill the blocks and hide what is behind
+them. The world comes from the config's `world_seed`; `--seed` draws the odometry noise, the
+missed detections, the measurement noise, the false alarms and the reported classes.
+
+A detection is the vehicle's centre as bearing/elevation/range from a roof camera, drawn with
+the noise its covariance declares (range noise grows with the square of the range, as stereo
+depth does).
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from data_tools.scenarios import config as cfg
+from data_tools.scenarios.common import (
+    SimulatedRun,
+    SimulationOptions,
+    floats,
+    metadata_for,
+    source_text,
+)
+from data_tools.scenarios.geometry import bearing_elevation_range, relative_poses
+from data_tools.scenarios.noise import (
+    OdometryNoiseConfig,
+    check_odometry_config,
+    confusion_matrix,
+    corrupt_odometry,
+    odometry_covariances,
+    random_streams,
+    sample_reported_classes,
+)
+from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
+from pipeline.log import Detection, GroundTruthLandmark
+
+logger = logging.getLogger(__name__)
+
+NAME = "city-grid"
+
+# Points tested along each line of sight against the buildings.
+LINE_OF_SIGHT_SAMPLES = np.linspace(0.05, 0.95, 24)
+# Vehicle-pose pairs examined at once (bounds memory on long routes).
+POSES_PER_CHUNK = 2000
+# Buildings stand this far back from the kerb line of parked vehicles.
+PAVEMENT_M = 2.0
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    streets_x: int
+    streets_y: int
+    block_x_m: float
+    block_y_m: float
+
+
+@dataclass(frozen=True)
+class VehicleType:
+    name: str
+    frequency: float
+
+
+@dataclass(frozen=True)
+class ParkingConfig:
+    slot_spacing_m: float
+    kerb_offset_m: float
+    corner_clearance_m: float
+    occupancy: float
+    slot_jitter_m: float
+    centre_height_m: float
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    camera_height_m: float
+    horizontal_fov_deg: float
+    min_range_m: float
+    max_range_m: float
+    detection_probability_near: float
+    detection_probability_far: float
+    sigma_bearing_rad: float
+    sigma_elevation_rad: float
+    sigma_range_m: float
+    sigma_range_per_m2: float
+    false_alarms_per_frame: float
+
+
+@dataclass(frozen=True)
+class CityGridConfig:
+    world_seed: int
+    num_classes: int
+    grid: GridConfig
+    route: RouteConfig
+    vehicles: tuple[VehicleType, ...]
+    parking: ParkingConfig
+    sensor: SensorConfig
+    odometry: OdometryNoiseConfig
+
+
+def load_config(path: Path | None = None) -> CityGridConfig:
+    config = cfg.load(CityGridConfig, NAME, path)
+    _check(config, path or cfg.default_config_path(NAME))
+    return config
+
+
+def _check(c: CityGridConfig, path: Path) -> None:
+    req = cfg.require
+    req(c.world_seed >= 0, path, "world_seed must be >= 0")
+    req(c.num_classes >= 1, path, "num_classes must be >= 1")
+    g = c.grid
+    req(g.streets_x >= 2 and g.streets_y >= 2, path, "grid needs at least two streets each way")
+    p = c.parking
+    street_half = p.kerb_offset_m + PAVEMENT_M
+    req(
+        min(g.block_x_m, g.block_y_m) > 2 * max(street_half, p.corner_clearance_m),
+        path,
+        "grid blocks are too small for the streets and their corner clearance",
+    )
+    check_route(c.route, path, req)
+    req(len(c.vehicles) >= 1, path, "at least one [[vehicles]] entry")
+    req(all(v.frequency > 0 for v in c.vehicles), path, "vehicles frequencies must be positive")
+    req(p.slot_spacing_m > 0 and p.kerb_offset_m > 0, path, "parking spacing and offset > 0")
+    req(0 <= p.occupancy <= 1, path, "parking.occupancy must be within 0..1")
+    req(0 <= p.slot_jitter_m < p.slot_spacing_m / 2, path, "parking.slot_jitter_m too large")
+    s = c.sensor
+    req(0 < s.horizontal_fov_deg < 180, path, "sensor.horizontal_fov_deg must be in (0, 180)")
+    req(0 < s.min_range_m < s.max_range_m, path, "sensor ranges: 0 < min_range_m < max_range_m")
+    for prob in (s.detection_probability_near, s.detection_probability_far):
+        req(0 <= prob <= 1, path, "sensor detection probabilities must be within 0..1")
+    sigmas = (s.sigma_bearing_rad, s.sigma_elevation_rad, s.sigma_range_m)
+    req(all(x > 0 for x in sigmas) and s.sigma_range_per_m2 >= 0, path, "sensor sigmas > 0")
+    req(s.false_alarms_per_frame >= 0, path, "sensor.false_alarms_per_frame must be >= 0")
+    check_odometry_config(c.odometry, path)
+
+
+# --- the world ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CityWorld:
+    times_ns: np.ndarray  # (N,)
+    poses: np.ndarray  # (N, 4, 4) body (camera) poses, camera_height_m above the road
+    vehicles: np.ndarray  # (M, 3) vehicle centres, row m = landmark id m
+    vehicle_types: np.ndarray  # (M,) index into config.vehicles
+    buildings: np.ndarray  # (K, 4) rectangles [x_min, y_min, x_max, y_max]
+
+
+def street_lines(grid: GridConfig) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    xs = tuple(float(i * grid.block_x_m) for i in range(grid.streets_x))
+    ys = tuple(float(j * grid.block_y_m) for j in range(grid.streets_y))
+    return xs, ys
+
+
+def buildings_of(xs: tuple[float, ...], ys: tuple[float, ...], half_street: float) -> np.ndarray:
+    return np.array(
+        [
+            [x0 + half_street, y0 + half_street, x1 - half_street, y1 - half_street]
+            for x0, x1 in itertools.pairwise(xs)
+            for y0, y1 in itertools.pairwise(ys)
+        ]
+    )
+
+
+def park_vehicles(
+    xs: tuple[float, ...],
+    ys: tuple[float, ...],
+    parking: ParkingConfig,
+    shares: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Vehicle centres (M, 3) and types (M,): slots along both kerbs of every street segment."""
+    segments = [((x0, y), (x1, y)) for y in ys for x0, x1 in itertools.pairwise(xs)]
+    segments += [((x, y0), (x, y1)) for x in xs for y0, y1 in itertools.pairwise(ys)]
+    centres = []
+    for start, end in segments:
+        start, end = np.array(start), np.array(end)
+        length = float(np.linalg.norm(end - start))
+        direction = (end - start) / length
+        left = np.array([-direction[1], direction[0]])
+        usable = length - 2 * parking.corner_clearance_m
+        count = math.floor(usable / parking.slot_spacing_m) + 1
+        along = parking.corner_clearance_m + np.arange(count) * parking.slot_spacing_m
+        along += (usable - along[-1] + parking.corner_clearance_m) / 2  # centre the row
+        for side in (1.0, -1.0):
+            taken = rng.random(count) < parking.occupancy
+            jitter = rng.uniform(-parking.slot_jitter_m, parking.slot_jitter_m, count)
+            s = along[taken] + jitter[taken]
+            centres.append(start + s[:, None] * direction + side * parking.kerb_offset_m * left)
+    xy = np.concatenate(centres)
+    types = rng.choice(len(shares), size=len(xy), p=shares / shares.sum())
+    heights = np.full((len(xy), 1), parking.centre_height_m)
+    return np.concatenate([xy, heights], axis=1), types
+
+
+def build_world(config: CityGridConfig) -> CityWorld:
+    rng = np.random.default_rng(config.world_seed)
+    xs, ys = street_lines(config.grid)
+    # Longer than asked: rounding the corners shortens the route.
+    vertices = junction_route(xs, ys, 1.05 * config.route.length_m + 100.0, rng)
+    times_ns, poses = drive(vertices, config.route, NAME)
+    poses[:, 2, 3] = config.sensor.camera_height_m
+    shares = np.array([v.frequency for v in config.vehicles])
+    vehicles, types = park_vehicles(xs, ys, config.parking, shares, rng)
+    buildings = buildings_of(xs, ys, config.parking.kerb_offset_m + PAVEMENT_M)
+    return CityWorld(times_ns, poses, vehicles, types, buildings)
+
+
+# --- what the camera sees -------------------------------------------------------------------
+
+
+def inside_any(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
+    """(..., 2) points inside any of the rectangles."""
+    p = points[..., None, :]
+    return (
+        (p[..., 0] >= rectangles[:, 0])
+        & (p[..., 0] <= rectangles[:, 2])
+        & (p[..., 1] >= rectangles[:, 1])
+        & (p[..., 1] <= rectangles[:, 3])
+    ).any(axis=-1)
+
+
+def visible_vehicles(
+    world: CityWorld, sensor: SensorConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pose index, vehicle id, body-frame position) of every vehicle detected: in view and
+    range, not behind a building, and drawn as detected."""
+    half_fov = math.radians(sensor.horizontal_fov_deg) / 2
+    found_pose, found_vehicle, found_local = [], [], []
+    for first in range(0, len(world.poses), POSES_PER_CHUNK):
+        poses = world.poses[first : first + POSES_PER_CHUNK]
+        offset = world.vehicles[None] - poses[:, None, :3, 3]  # (n, M, 3)
+        local = np.einsum("nji,nmj->nmi", poses[:, :3, :3], offset)
+        distance = np.linalg.norm(local, axis=-1)
+        bearing = np.arctan2(local[..., 1], local[..., 0])
+        in_view = (
+            (distance >= sensor.min_range_m)
+            & (distance <= sensor.max_range_m)
+            & (local[..., 0] > 0)
+            & (np.abs(bearing) <= half_fov)
+        )
+        pose_index, vehicle = np.nonzero(in_view)
+        start = poses[pose_index, :2, 3]
+        end = world.vehicles[vehicle, :2]
+        samples = start[:, None] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (end - start)[:, None]
+        clear = ~inside_any(samples, world.buildings).any(axis=1)
+        pose_index, vehicle = pose_index[clear], vehicle[clear]
+        found_pose.append(pose_index + first)
+        found_vehicle.append(vehicle)
+        found_local.append(local[pose_index, vehicle])
+    pose_index = np.concatenate(found_pose)
+    vehicle = np.concatenate(found_vehicle)
+    local = np.concatenate(found_local)
+    # Detection probability falls linearly with range.
+    fraction = (np.linalg.norm(local, axis=1) - sensor.min_range_m) / (
+        sensor.max_range_m - sensor.min_range_m
+    )
+    near, far = sensor.detection_probability_near, sensor.detection_probability_far
+    detected = rng.random(len(vehicle)) < near + (far - near) * fraction
+    return pose_index[detected], vehicle[detected], local[detected]
+
+
+def measurement_sigmas(sensor: SensorConfig, ranges: np.ndarray) -> np.ndarray:
+    """(n, 3) sigmas of (bearing, elevation, range) for true ranges."""
+    sigmas = np.empty((len(ranges), 3))
+    sigmas[:, 0] = sensor.sigma_bearing_rad
+    sigmas[:, 1] = sensor.sigma_elevation_rad
+    sigmas[:, 2] = sensor.sigma_range_m + sensor.sigma_range_per_m2 * ranges**2
+    return sigmas
+
+
+def false_alarms(
+    num_frames: int, config: CityGridConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pose index, type, body-frame position) of phantom vehicles, uniform in view and range."""
+    s = config.sensor
+    count = rng.poisson(s.false_alarms_per_frame, num_frames)
+    pose_index = np.repeat(np.arange(num_frames), count)
+    n = len(pose_index)
+    shares = np.array([v.frequency for v in config.vehicles])
+    kinds = rng.choice(len(shares), size=n, p=shares / shares.sum())
+    half_fov = math.radians(s.horizontal_fov_deg) / 2
+    bearing = rng.uniform(-half_fov, half_fov, n)
+    distance = rng.uniform(s.min_range_m, s.max_range_m, n)
+    height = config.parking.centre_height_m - s.camera_height_m
+    local = np.stack(
+        [distance * np.cos(bearing), distance * np.sin(bearing), np.full(n, height)], axis=1
+    )
+    return pose_index, kinds, local
+
+
+def class_names(vehicles: tuple[VehicleType, ...], num_classes: int) -> list[str]:
+    """Vehicle type k is class k mod C; a class's name lists the types it holds."""
+    names = []
+    for c in range(num_classes):
+        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
+        names.append("+".join(members) if members else f"class-{c}")
+    return names
+
+
+# --- the run --------------------------------------------------------------------------------
+
+
+def simulate(
+    config: CityGridConfig, options: SimulationOptions, config_path: Path | None = None
+) -> SimulatedRun:
+    world = build_world(config)
+    streams = random_streams(options.seed)
+    num_classes = options.num_classes
+    origin = np.linalg.inv(world.poses[0])
+    poses = origin @ world.poses
+    vehicles = world.vehicles @ origin[:3, :3].T + origin[:3, 3]
+
+    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
+    odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
+
+    pose_index, vehicle, local = visible_vehicles(world, config.sensor, streams["visibility"])
+    fa_pose, fa_kind, fa_local = false_alarms(len(poses), config, streams["false_positives"])
+    pose_index = np.concatenate([pose_index, fa_pose])
+    truth = np.concatenate([vehicle, np.full(len(fa_pose), -1)])
+    kinds = np.concatenate([world.vehicle_types[vehicle], fa_kind])
+    local = np.concatenate([local, fa_local])
+
+    true_ber = bearing_elevation_range(local)
+    sigmas = measurement_sigmas(config.sensor, true_ber[:, 2])
+    measured = true_ber + sigmas * streams["measurement"].standard_normal(sigmas.shape)
+    measured[:, 2] = np.maximum(measured[:, 2], 0.1)  # a range is positive
+
+    confusion = confusion_matrix(num_classes, options.misclassification)
+    reported = sample_reported_classes(streams["classes"], kinds % num_classes, confusion)
+
+    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
+    # Within a keyframe, detections go left to right as in the image (no hint of the truth).
+    for k in np.lexsort((-measured[:, 0], pose_index)):
+        detections[pose_index[k]].append(
+            Detection(
+                class_id=int(reported[k]),
+                score=1.0,
+                bearing=float(measured[k, 0]),
+                elevation=float(measured[k, 1]),
+                range=float(measured[k, 2]),
+                covariance=floats(np.diag(sigmas[k] ** 2)),
+                source="bbox",
+                truth_landmark_id=int(truth[k]),
+            )
+        )
+    landmarks = [
+        GroundTruthLandmark(
+            id=m,
+            class_id=int(world.vehicle_types[m]) % num_classes,
+            position=floats(vehicles[m]),  # type: ignore[arg-type]
+        )
+        for m in range(len(vehicles))
+    ]
+    names = class_names(config.vehicles, num_classes)
+    return SimulatedRun(
+        times_ns=world.times_ns,
+        poses=poses,
+        odometry=odometry,
+        odometry_covariance=true if options.true_covariance else calibrated,
+        detections=detections,
+        landmarks=landmarks,
+        metadata=metadata_for(
+            num_classes, confusion, names, source_text(NAME, options, config_path)
+        ),
+    )

@@ -1,0 +1,327 @@
+"""planar-park: a 2-D laser scanner's view of tree trunks from a car driving loops in a park.
+
+Modelled on the real planar datasets of range-bearing SLAM (Victoria Park): everything lies in
+one plane, so every detection has elevation 0 and the odometry never moves in z, roll or pitch;
+the log still states a small variance for them and a sigma for the elevation, as a converted
+real dataset does. The odometry's error is mostly a slow bias (wheel radius, yaw-rate drift),
+strongly correlated from one keyframe to the next, while the log states white per-step sigmas:
+the drift over a loop is far larger than the stated covariance implies. The bearing sigma the
+log states is larger than the scanner's real one. One class (trees), clutter from other objects.
+
+The world comes from the config's `world_seed`; `--seed` draws the odometry noise, the missed
+detections, the measurement noise and the clutter.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from data_tools.scenarios import config as cfg
+from data_tools.scenarios.common import (
+    SimulatedRun,
+    SimulationOptions,
+    floats,
+    metadata_for,
+    source_text,
+)
+from data_tools.scenarios.geometry import (
+    bearing_elevation_range,
+    pose_from_rotation_translation,
+    relative_poses,
+    yaw_rotation,
+)
+from data_tools.scenarios.noise import random_streams
+from data_tools.scenarios.routes import RouteConfig, check_route, drive
+from pipeline.log import Detection, GroundTruthLandmark
+
+logger = logging.getLogger(__name__)
+
+NAME = "planar-park"
+
+
+@dataclass(frozen=True)
+class ParkConfig:
+    size_m: float
+    tree_count: int
+    min_spacing_m: float
+    path_clearance_m: float
+    places: int
+    margin_m: float
+    next_choices: int
+
+
+@dataclass(frozen=True)
+class ScannerConfig:
+    fov_deg: float
+    min_range_m: float
+    max_range_m: float
+    detection_probability: float
+    clutter_per_frame: float
+    sigma_bearing_rad: float
+    sigma_range_m: float
+    stated_sigma_bearing_rad: float
+    stated_sigma_elevation_rad: float
+    stated_sigma_range_m: float
+
+
+@dataclass(frozen=True)
+class BiasedOdometryConfig:
+    white_sigma_x_m: float
+    white_sigma_y_m: float
+    white_sigma_yaw_rad: float
+    bias_scale_sigma: float
+    bias_yaw_sigma_rad: float
+    bias_correlation: float
+    stated_flat_variance: float
+    default_noise_scale: float
+
+
+@dataclass(frozen=True)
+class PlanarParkConfig:
+    world_seed: int
+    num_classes: int
+    park: ParkConfig
+    route: RouteConfig
+    scanner: ScannerConfig
+    odometry: BiasedOdometryConfig
+
+
+def load_config(path: Path | None = None) -> PlanarParkConfig:
+    config = cfg.load(PlanarParkConfig, NAME, path)
+    _check(config, path or cfg.default_config_path(NAME))
+    return config
+
+
+def _check(c: PlanarParkConfig, path: Path) -> None:
+    req = cfg.require
+    req(c.world_seed >= 0, path, "world_seed must be >= 0")
+    req(c.num_classes == 1, path, "num_classes must be 1 (trees)")
+    p = c.park
+    req(p.size_m > 2 * p.margin_m and p.margin_m >= 0, path, "park.size_m must exceed 2 margin_m")
+    req(p.tree_count >= 1 and p.min_spacing_m >= 0, path, "park: tree_count >= 1, spacing >= 0")
+    req(p.places >= 3 and 1 <= p.next_choices < p.places, path, "park: places >= 3, choices")
+    req(p.path_clearance_m >= 0, path, "park.path_clearance_m must be >= 0")
+    check_route(c.route, path, req)
+    s = c.scanner
+    req(0 < s.fov_deg <= 360, path, "scanner.fov_deg must be in (0, 360]")
+    req(0 < s.min_range_m < s.max_range_m, path, "scanner ranges: 0 < min_range_m < max_range_m")
+    req(0 <= s.detection_probability <= 1, path, "scanner.detection_probability in 0..1")
+    req(s.clutter_per_frame >= 0, path, "scanner.clutter_per_frame must be >= 0")
+    sigmas = (
+        s.sigma_bearing_rad,
+        s.sigma_range_m,
+        s.stated_sigma_bearing_rad,
+        s.stated_sigma_elevation_rad,
+        s.stated_sigma_range_m,
+    )
+    req(all(x > 0 for x in sigmas), path, "scanner sigmas must be positive")
+    o = c.odometry
+    white = (o.white_sigma_x_m, o.white_sigma_y_m, o.white_sigma_yaw_rad)
+    req(all(x > 0 for x in white), path, "odometry white sigmas must be positive")
+    req(o.bias_scale_sigma >= 0 and o.bias_yaw_sigma_rad >= 0, path, "odometry bias sigmas >= 0")
+    req(0 <= o.bias_correlation < 1, path, "odometry.bias_correlation must be in [0, 1)")
+    req(o.stated_flat_variance > 0, path, "odometry.stated_flat_variance must be positive")
+    req(o.default_noise_scale >= 0, path, "odometry.default_noise_scale must be >= 0")
+
+
+# --- the world ------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ParkWorld:
+    times_ns: np.ndarray  # (N,)
+    poses: np.ndarray  # (N, 4, 4) planar scanner poses
+    trees: np.ndarray  # (M, 3) trunk positions at the scanner's height, row m = landmark m
+
+
+def place_route(park: ParkConfig, length: float, rng: np.random.Generator) -> np.ndarray:
+    """Route vertices (K, 2): from place to place until `length`, each time to the least
+    visited of the `next_choices` nearest other places (never straight back), so the park is
+    covered and then driven again in overlapping loops."""
+    places = rng.uniform(park.margin_m, park.size_m - park.margin_m, (park.places, 2))
+    distances = np.linalg.norm(places[:, None] - places[None], axis=-1)
+    nearest = np.argsort(distances, axis=1)[:, 1 : park.next_choices + 1]
+    visits = np.zeros(park.places, dtype=int)
+    current, previous = 0, -1
+    route, total = [places[0]], 0.0
+    while total < length:
+        options = [int(n) for n in nearest[current] if n != previous]
+        fewest = min(visits[options])
+        options = [n for n in options if visits[n] == fewest]
+        step = options[int(rng.integers(len(options)))]
+        visits[step] += 1
+        total += float(distances[current, step])
+        previous, current = current, step
+        route.append(places[current])
+    return np.array(route)
+
+
+def plant_trees(park: ParkConfig, path_xy: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(M, 3) trunks: uniform in the park, min_spacing_m apart, clear of the path."""
+    path_tree = cKDTree(path_xy)
+    trees: list[np.ndarray] = []
+    for _ in range(50 * park.tree_count):
+        if len(trees) == park.tree_count:
+            break
+        xy = rng.uniform(0.0, park.size_m, 2)
+        if path_tree.query(xy)[0] < park.path_clearance_m:
+            continue
+        if trees and np.min(np.linalg.norm(np.array(trees) - xy, axis=1)) < park.min_spacing_m:
+            continue
+        trees.append(xy)
+    xy = np.array(trees)
+    return np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)
+
+
+def build_world(config: PlanarParkConfig) -> ParkWorld:
+    rng = np.random.default_rng(config.world_seed)
+    vertices = place_route(config.park, 1.05 * config.route.length_m + 100.0, rng)
+    times_ns, poses = drive(vertices, config.route, NAME)
+    trees = plant_trees(config.park, poses[:, :2, 3], rng)
+    return ParkWorld(times_ns, poses, trees)
+
+
+# --- odometry --------------------------------------------------------------------------------
+
+
+def biased_planar_odometry(
+    true_motion: np.ndarray, o: BiasedOdometryConfig, scale: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Measured (N, 4, 4) planar motions: the true ones with white noise and a slow bias.
+
+    The bias is an AR(1) process b_k = rho b_{k-1} + sqrt(1 - rho^2) sigma n_k on the forward
+    scale and on the yaw; z, roll and pitch are exact (a flat park)."""
+    n = len(true_motion)
+    rho = o.bias_correlation
+    innovations = rng.standard_normal((n, 2)) * np.array([o.bias_scale_sigma, o.bias_yaw_sigma_rad])
+    bias = np.empty((n, 2))
+    state = innovations[0]
+    for k in range(n):
+        state = rho * state + math.sqrt(1 - rho * rho) * innovations[k] if k else state
+        bias[k] = state
+    bias *= scale
+    white = rng.standard_normal((n, 3)) * np.array(
+        [o.white_sigma_x_m, o.white_sigma_y_m, o.white_sigma_yaw_rad]
+    )
+    dx = true_motion[:, 0, 3] * (1.0 + bias[:, 0]) + white[:, 0]
+    dy = true_motion[:, 1, 3] + white[:, 1]
+    dyaw = np.arctan2(true_motion[:, 1, 0], true_motion[:, 0, 0]) + bias[:, 1] + white[:, 2]
+    translation = np.stack([dx, dy, np.zeros(n)], axis=1)
+    return pose_from_rotation_translation(yaw_rotation(dyaw), translation)
+
+
+def stated_odometry_covariance(o: BiasedOdometryConfig, scale: float, true: bool) -> np.ndarray:
+    """What the log says, in Pose3 tangent order: the white sigmas (and, with `true`, the
+    bias's stationary sigmas added as if white) plus the flat variances."""
+    yaw = o.white_sigma_yaw_rad**2
+    x = o.white_sigma_x_m**2
+    if true:
+        yaw += (scale * o.bias_yaw_sigma_rad) ** 2
+        x += (scale * o.bias_scale_sigma) ** 2  # per metre of step; steps are ~1 m or less
+    flat = o.stated_flat_variance
+    return np.diag([flat, flat, yaw, x, o.white_sigma_y_m**2, flat])
+
+
+# --- what the scanner sees --------------------------------------------------------------------
+
+
+def scan(
+    world: ParkWorld, s: ScannerConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pose index, tree id, body-frame position) of every trunk seen."""
+    offset = world.trees[None] - world.poses[:, None, :3, 3]
+    local = np.einsum("nji,nmj->nmi", world.poses[:, :3, :3], offset)
+    distance = np.linalg.norm(local, axis=-1)
+    bearing = np.arctan2(local[..., 1], local[..., 0])
+    in_view = (
+        (distance >= s.min_range_m)
+        & (distance <= s.max_range_m)
+        & (np.abs(bearing) <= math.radians(s.fov_deg) / 2)
+    )
+    pose_index, tree = np.nonzero(in_view)
+    seen = rng.random(len(tree)) < s.detection_probability
+    pose_index, tree = pose_index[seen], tree[seen]
+    return pose_index, tree, local[pose_index, tree]
+
+
+def clutter(
+    num_frames: int, s: ScannerConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """(pose index, body-frame position) of returns from things that are not trees."""
+    count = rng.poisson(s.clutter_per_frame, num_frames)
+    pose_index = np.repeat(np.arange(num_frames), count)
+    n = len(pose_index)
+    half = math.radians(s.fov_deg) / 2
+    bearing = rng.uniform(-half, half, n)
+    distance = rng.uniform(s.min_range_m, s.max_range_m, n)
+    local = np.stack([distance * np.cos(bearing), distance * np.sin(bearing), np.zeros(n)], 1)
+    return pose_index, local
+
+
+# --- the run --------------------------------------------------------------------------------
+
+
+def simulate(
+    config: PlanarParkConfig, options: SimulationOptions, config_path: Path | None = None
+) -> SimulatedRun:
+    world = build_world(config)
+    streams = random_streams(options.seed)
+    origin = np.linalg.inv(world.poses[0])
+    poses = origin @ world.poses
+    trees = world.trees @ origin[:3, :3].T + origin[:3, 3]
+    o, s = config.odometry, config.scanner
+
+    scale = options.odom_noise_scale
+    odometry = biased_planar_odometry(relative_poses(poses), o, scale, streams["odometry"])
+    covariance = stated_odometry_covariance(o, scale, options.true_covariance)
+
+    pose_index, tree, local = scan(world, s, streams["visibility"])
+    clutter_pose, clutter_local = clutter(len(poses), s, streams["false_positives"])
+    pose_index = np.concatenate([pose_index, clutter_pose])
+    truth = np.concatenate([tree, np.full(len(clutter_pose), -1)])
+    measured = bearing_elevation_range(np.concatenate([local, clutter_local]))
+    noise = streams["measurement"].standard_normal((len(truth), 2))
+    measured[:, 0] += s.sigma_bearing_rad * noise[:, 0]
+    measured[:, 1] = 0.0  # a planar scanner
+    measured[:, 2] = np.maximum(measured[:, 2] + s.sigma_range_m * noise[:, 1], 0.1)
+    stated = floats(
+        np.diag([s.stated_sigma_bearing_rad, s.stated_sigma_elevation_rad, s.stated_sigma_range_m])
+        ** 2
+    )
+
+    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
+    # Within a scan, returns go by bearing, as a scanner sweeps (no hint of the truth).
+    for k in np.lexsort((-measured[:, 0], pose_index)):
+        detections[pose_index[k]].append(
+            Detection(
+                class_id=0,
+                score=1.0,
+                bearing=float(measured[k, 0]),
+                elevation=float(measured[k, 1]),
+                range=float(measured[k, 2]),
+                covariance=stated,
+                source="bbox",  # the contract knows tags and detector boxes; a trunk is the latter
+                truth_landmark_id=int(truth[k]),
+            )
+        )
+    landmarks = [
+        GroundTruthLandmark(id=m, class_id=0, position=floats(trees[m]))  # type: ignore[arg-type]
+        for m in range(len(trees))
+    ]
+    return SimulatedRun(
+        times_ns=world.times_ns,
+        poses=poses,
+        odometry=odometry,
+        odometry_covariance=covariance,
+        detections=detections,
+        landmarks=landmarks,
+        metadata=metadata_for(
+            1, np.ones((1, 1)), ["tree"], source_text(NAME, options, config_path)
+        ),
+    )

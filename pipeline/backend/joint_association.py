@@ -1,0 +1,246 @@
+"""The detections of one keyframe associated together: joint compatibility, scored as one
+max-mixture over the keyframe with its pose integrated out.
+
+All of a keyframe's detections share its new pose, whose error after a long drive is the
+largest error in every innovation. Chosen one by one at the predicted pose, the one landmark
+that happens to fit the drifted prediction wins, while the truthful ones look like outliers;
+chosen one by one by their marginal weights, a lookalike can still win. Chosen together, an
+assignment of detections to landmarks (or to the null: no landmark seen before) explains the
+stacked innovations nu_H with covariance S_H = J Sigma J^T + Gamma, Sigma the joint marginal
+covariance of the pose and every landmark involved; its score is the log of
+
+    N(nu_H; 0, S_H) * prod_paired (1 - null_weight) P(report | landmark)
+                    * prod_unpaired (null density)
+
+the max-mixture's components with the pose marginalised (Neira and Tardos's joint
+compatibility, with a likelihood instead of a count). Branch and bound finds the best
+assignment; each pairing in it is kept only if no assignment that pairs its detection with
+another landmark scores within `ambiguity_log_odds` of it, so that in an aliased world, where
+a shifted assignment explains the keyframe almost as well, nothing is associated on a guess.
+
+Pure numpy: the caller gathers residuals, Jacobians and the joint covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.backend.association import LOG_2PI
+
+NONE = -1
+
+
+@dataclass(frozen=True)
+class DetectionOptions:
+    """One detection's candidate landmarks at the predicted pose."""
+
+    residuals: np.ndarray  # (c, d): h(x_pred, l_j) - z
+    pose_jacobians: np.ndarray  # (c, d, 6)
+    landmark_jacobians: np.ndarray  # (c, d, k)
+    slots: np.ndarray  # (c,) index of each candidate's landmark block in the covariance
+    log_prior: np.ndarray  # (c,) log((1 - null_weight) P(report | landmark))
+    covariance: np.ndarray  # (d, d): Gamma
+    null_log_density: float  # log of the null component's density for this detection
+
+    @property
+    def dim(self) -> int:
+        return self.covariance.shape[0]
+
+    def subset(self, options: np.ndarray) -> DetectionOptions:
+        """The same detection with only the candidates `options` (indices)."""
+        return DetectionOptions(
+            self.residuals[options],
+            self.pose_jacobians[options],
+            self.landmark_jacobians[options],
+            self.slots[options],
+            self.log_prior[options],
+            self.covariance,
+            self.null_log_density,
+        )
+
+
+@dataclass(frozen=True)
+class KeyframeProblem:
+    detections: list[DetectionOptions]
+    covariance: np.ndarray  # joint over [pose (6) | landmark blocks]
+    block_offsets: np.ndarray  # (slots,) first row of each landmark block
+    block_dims: np.ndarray  # (slots,)
+    gate_confidence: float  # joint compatibility's chi-square confidence
+
+
+def _stack(problem: KeyframeProblem, pairs: list[tuple[int, int]]):
+    """Innovations and their covariance S = J Sigma J^T + Gamma for (detection, option) pairs."""
+    rows = sum(problem.detections[i].dim for i, _ in pairs)
+    n = problem.covariance.shape[0]
+    J = np.zeros((rows, n))
+    nu = np.zeros(rows)
+    gamma = np.zeros((rows, rows))
+    r = 0
+    for i, k in pairs:
+        det = problem.detections[i]
+        d = det.dim
+        slot = det.slots[k]
+        start, width = problem.block_offsets[slot], problem.block_dims[slot]
+        J[r : r + d, :6] = det.pose_jacobians[k]
+        J[r : r + d, start : start + width] = det.landmark_jacobians[k]
+        nu[r : r + d] = det.residuals[k]
+        gamma[r : r + d, r : r + d] = det.covariance
+        r += d
+    return nu, J @ problem.covariance @ J.T + gamma
+
+
+def joint_log_likelihood(
+    problem: KeyframeProblem, pairs: list[tuple[int, int]]
+) -> tuple[float, float]:
+    """(log N(nu; 0, S), nu^T S^-1 nu) of the pairs' stacked innovations."""
+    if not pairs:
+        return 0.0, 0.0
+    nu, S = _stack(problem, pairs)
+    L = np.linalg.cholesky(0.5 * (S + S.T))
+    y = np.linalg.solve(L, nu)
+    d2 = float(y @ y)
+    log_det = 2.0 * float(np.sum(np.log(np.diag(L))))
+    return -0.5 * (d2 + log_det + len(nu) * LOG_2PI), d2
+
+
+def score(problem: KeyframeProblem, assignment: list[int]) -> float:
+    """Log-score of an assignment (option index per detection, NONE for the null)."""
+    pairs = [(i, k) for i, k in enumerate(assignment) if k != NONE]
+    total, _ = joint_log_likelihood(problem, pairs)
+    for i, k in enumerate(assignment):
+        det = problem.detections[i]
+        total += det.log_prior[k] if k != NONE else det.null_log_density
+    return total
+
+
+def _max_gain(det: DetectionOptions) -> float:
+    """An upper bound on what pairing the detection can add over its null: the conditional
+    covariance of its innovation is at least Gamma, so its density is at most N(0; Gamma)."""
+    if len(det.slots) == 0:
+        return 0.0
+    _, log_det = np.linalg.slogdet(det.covariance)
+    peak = -0.5 * (log_det + det.dim * LOG_2PI)
+    return max(0.0, peak + float(np.max(det.log_prior)) - det.null_log_density)
+
+
+class _Search:
+    def __init__(self, problem: KeyframeProblem, max_nodes: int, required: tuple[int, int] | None):
+        from scipy.special import chdtri
+
+        self.problem = problem
+        self.max_nodes = max_nodes
+        self.required = required
+        n = len(problem.detections)
+        # Fewest options first: the tree narrows fastest.
+        self.order = sorted(range(n), key=lambda i: len(problem.detections[i].slots))
+        if required is not None:
+            self.order.remove(required[0])
+            self.order.insert(0, required[0])
+        gains = [_max_gain(problem.detections[i]) for i in self.order]
+        self.remaining_gain = np.concatenate([np.cumsum(gains[::-1])[::-1], [0.0]])
+        self.null_total = sum(d.null_log_density for d in problem.detections)
+        total_dim = sum(d.dim for d in problem.detections)
+        self.gates = {
+            k: float(chdtri(k, 1.0 - problem.gate_confidence)) for k in range(1, total_dim + 1)
+        }
+        self.nodes = 0
+        self.exhausted = False
+        self.best: list[int] | None = None
+        self.best_score = -math.inf
+
+    def run(self) -> tuple[list[int] | None, float]:
+        self._visit(0, [], set(), 0.0, self.null_total)
+        return self.best, self.best_score
+
+    def _visit(self, depth, pairs, used, log_lik, priors) -> None:
+        self.nodes += 1
+        if self.nodes > self.max_nodes:
+            self.exhausted = True
+            return
+        current = log_lik + priors
+        if current + self.remaining_gain[depth] <= self.best_score:
+            return
+        if depth == len(self.order):
+            assignment = [NONE] * len(self.problem.detections)
+            for i, k in pairs:
+                assignment[i] = k
+            self.best, self.best_score = assignment, current
+            return
+        i = self.order[depth]
+        det = self.problem.detections[i]
+        options = range(len(det.slots))
+        if self.required is not None and depth == 0:
+            options = [self.required[1]]
+        for k in options:
+            if det.slots[k] in used:
+                continue
+            trial = [*pairs, (i, k)]
+            trial_lik, d2 = joint_log_likelihood(self.problem, trial)
+            dims = sum(self.problem.detections[a].dim for a, _ in trial)
+            if d2 > self.gates[dims]:
+                continue
+            self._visit(
+                depth + 1,
+                trial,
+                used | {det.slots[k]},
+                trial_lik,
+                priors - det.null_log_density + det.log_prior[k],
+            )
+        if self.required is None or depth > 0:
+            self._visit(depth + 1, pairs, used, log_lik, priors)
+
+
+def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> bool:
+    """Whether detection i cannot tell its options k and `other` apart: the difference of
+    their predictions is within the joint gate of its covariance (the two landmarks' joint
+    uncertainty seen through the measurement, plus the measurement's noise). Such landmarks
+    are likely one landmark mapped twice, which a merge will join; a choice between them is
+    no ambiguity."""
+    det = problem.detections[i]
+    n = problem.covariance.shape[0]
+    J = np.zeros((det.dim, n))
+    for option, sign in ((k, 1.0), (other, -1.0)):
+        slot = det.slots[option]
+        start, width = problem.block_offsets[slot], problem.block_dims[slot]
+        J[:, start : start + width] += sign * det.landmark_jacobians[option]
+    covariance = J @ problem.covariance @ J.T + det.covariance
+    difference = det.residuals[k] - det.residuals[other]
+    d2 = float(difference @ np.linalg.solve(covariance, difference))
+    from scipy.special import chdtri
+
+    return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
+
+
+@dataclass(frozen=True)
+class KeyframeDecision:
+    assignment: list[int]  # option index per detection, NONE: the null
+    unique: list[bool]  # per detection: its pairing has no close rival
+    finished: bool  # the search ended within its node budget
+
+
+def associate_keyframe(
+    problem: KeyframeProblem, ambiguity_log_odds: float, max_nodes: int
+) -> KeyframeDecision:
+    """The best assignment, and which of its pairings no rival comes close to."""
+    n = len(problem.detections)
+    search = _Search(problem, max_nodes, None)
+    best, best_score = search.run()
+    if best is None or search.exhausted:
+        return KeyframeDecision([NONE] * n, [False] * n, False)
+    unique = [False] * n
+    for i, k in enumerate(best):
+        if k == NONE:
+            continue
+        unique[i] = True
+        for other in range(len(problem.detections[i].slots)):
+            if other == k or indistinguishable(problem, i, k, other):
+                continue
+            rival = _Search(problem, max_nodes, (i, other))
+            _, rival_score = rival.run()
+            if rival.exhausted or rival_score >= best_score - ambiguity_log_odds:
+                unique[i] = False
+                break
+    return KeyframeDecision(best, unique, True)

@@ -1,0 +1,183 @@
+"""`mmslam replay --mcap FILE`: the estimate as Foxglove messages, in an MCAP file of its own
+that opens beside the log (both use the frame `world`, pose 0's body frame).
+
+- `/foxglove/estimate/tf` (FrameTransform): `world` to `estimate`, per pose;
+- `/foxglove/estimate/pose` (PoseInFrame), per pose; `/foxglove/estimate/path` (PosesInFrame),
+  the whole trajectory at the first stamp;
+- `/foxglove/estimate/landmarks` (SceneUpdate): a sphere per landmark at its final position,
+  coloured and labelled by its MAP class, from the keyframe that first saw it;
+- `/foxglove/estimate/associations` (SceneUpdate): per keyframe, a line from the pose to the
+  landmark each detection is finally associated with; red to where the detection points
+  when the null hypothesis won;
+- `/foxglove/estimate/events` (Log): null-hypothesis wins and switches as they happened, and
+  the metrics at the end.
+
+The final estimate is known only at the end, so the file is written by `finish`, under a
+temporary name renamed into place.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import foxglove.messages as fg
+import numpy as np
+from mcap.writer import CompressionType, Writer
+
+from pipeline.backend.hypotheses import NULL
+from pipeline.errors import InputError
+from pipeline.foxglove import messages as fm
+from pipeline.foxglove.channels import FoxgloveChannels
+from pipeline.outputs import AtomicFile
+
+if TYPE_CHECKING:
+    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.log.messages import DetectionLog
+
+ESTIMATE = "estimate"
+TF = "/foxglove/estimate/tf"
+POSE = "/foxglove/estimate/pose"
+PATH = "/foxglove/estimate/path"
+LANDMARKS = "/foxglove/estimate/landmarks"
+ASSOCIATIONS = "/foxglove/estimate/associations"
+EVENTS = "/foxglove/estimate/events"
+
+
+def landmark_label(landmark_id: int, class_name: str, probability: float) -> str:
+    return f"L{landmark_id} {class_name} {probability:.2f}"
+
+
+class FoxgloveSink:
+    """A results sink (`pipeline/viz/sink.py`) that writes the estimate to an MCAP file."""
+
+    wants_images = False
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if self.path.is_dir():
+            raise InputError(f"--mcap {self.path}: is a directory, expected a file name")
+        self.stamps: list[int] = []
+        self.class_names: tuple[str, ...] = ()
+        self.method = ""
+        self.events: list[tuple[int, str, bool]] = []  # stamp, text, warning
+        self._winners: dict[tuple[int, int], int] = {}
+
+    def start(self, log: DetectionLog, method: str) -> None:
+        self.stamps = log.pose_stamps_ns()
+        self.class_names = log.metadata.class_names
+        self.method = method
+
+    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+        """Null wins and switches, told as they happen (the records change later)."""
+        stamp = self.stamps[report.pose_index]
+        for record in report.switched:
+            m = record.measurement
+            key = (m.pose_index, m.detection_index)
+            previous = self._winners.get(key)
+            self._winners[key] = record.landmark_id
+            if previous is not None:
+                self.events.append(
+                    (
+                        stamp,
+                        f"pose {report.pose_index}: detection {m.detection_index} of pose "
+                        f"{m.pose_index} switched from {self._name(previous)} to "
+                        f"{self._name(record.landmark_id)}",
+                        True,
+                    )
+                )
+        for record in report.records:
+            m = record.measurement
+            self._winners[(m.pose_index, m.detection_index)] = record.landmark_id
+            if record.landmark_id == NULL:
+                self.events.append(
+                    (
+                        stamp,
+                        f"pose {m.pose_index}: detection {m.detection_index} left to the null "
+                        "hypothesis",
+                        False,
+                    )
+                )
+
+    @staticmethod
+    def _name(landmark_id: int) -> str:
+        return "the null hypothesis" if landmark_id == NULL else f"landmark {landmark_id}"
+
+    def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
+        messages = self._messages(result, metrics)
+        messages.sort(key=lambda m: m[0])  # stable: in time order, as the log's are
+        with AtomicFile(self.path) as out:
+            writer = Writer(out.file, compression=CompressionType.ZSTD)
+            writer.start(profile="", library="mmslam")
+            writer.add_metadata("mmslam.estimate", {"method": self.method})
+            channels = FoxgloveChannels(writer)
+            for stamp, topic, message in messages:
+                channels.write(topic, stamp, message)
+            writer.finish()
+
+    def _messages(
+        self, result: BackendResult, metrics: dict[str, Any] | None
+    ) -> list[tuple[int, str, Any]]:
+        stamps = self.stamps
+        poses = [p.matrix() for p in result.poses]
+        out: list[tuple[int, str, Any]] = []
+        for k, T in enumerate(poses):
+            out.append((stamps[k], TF, fm.frame_transform(stamps[k], fm.WORLD, ESTIMATE, T)))
+            out.append((stamps[k], POSE, fm.pose_in_frame(stamps[k], fm.pose_of_matrix(T))))
+        path = [fm.pose_of_matrix(T) for T in poses]
+        out.append((stamps[0], PATH, fm.poses_in_frame(stamps[0], path)))
+
+        positions = {
+            i: np.asarray(v.translation() if hasattr(v, "translation") else v, float)
+            for i, v in zip(result.landmark_ids, result.landmark_values, strict=True)
+        }
+        first_seen: dict[int, int] = {}
+        by_pose: dict[int, list[Any]] = {}
+        for record in result.records:
+            m = record.measurement
+            by_pose.setdefault(m.pose_index, []).append(record)
+            if record.landmark_id != NULL:
+                first_seen[record.landmark_id] = min(
+                    first_seen.get(record.landmark_id, m.pose_index), m.pose_index
+                )
+        new_at: dict[int, list[tuple[int, Any, int, str]]] = {}
+        for landmark_id, position in positions.items():
+            landmark = result.landmarks.landmarks[landmark_id]
+            c = int(landmark.map_class)
+            probability = float(landmark.class_probabilities[c])
+            label = landmark_label(landmark_id, fm.class_name(self.class_names, c), probability)
+            new_at.setdefault(first_seen.get(landmark_id, 0), []).append(
+                (landmark_id, position, c, label)
+            )
+        for k, rows in sorted(new_at.items()):
+            out.append((stamps[k], LANDMARKS, fm.landmark_update(stamps[k], rows)))
+
+        for k, records in sorted(by_pose.items()):
+            T = poses[k]
+            segments = []
+            for record in records:
+                if record.landmark_id == NULL:
+                    measured = T[:3, :3] @ record.measurement.body_point + T[:3, 3]
+                    segments.append((T[:3, 3], measured, fm.colour(fm.NULL_COLOUR)))
+                elif record.landmark_id in positions:
+                    c = int(result.landmarks.landmarks[record.landmark_id].map_class)
+                    alpha = 0.3 + 0.7 * float(record.weight)
+                    segments.append(
+                        (T[:3, 3], positions[record.landmark_id], fm.class_colour(c, alpha))
+                    )
+            entity = fm.lines_entity(stamps[k], "associations", segments)
+            out.append((stamps[k], ASSOCIATIONS, fg.SceneUpdate(entities=[entity])))
+
+        for stamp, text, warning in self.events:
+            out.append((stamp, EVENTS, fm.event(stamp, text, warning)))
+        if metrics is not None:
+            t, a = metrics["translation_error_m"], metrics["association"]
+            summary = (
+                f"{self.method}: translation error rmse {t['rmse']:.3f} m, max {t['max']:.3f} m; "
+                f"associations {a['correct']} correct, {a['wrong']} wrong, {a['null']} null"
+            )
+            out.append((stamps[-1], EVENTS, fm.event(stamps[-1], summary)))
+        return out
+
+    def close(self) -> None:
+        pass

@@ -1,0 +1,57 @@
+"""The run's summary as Markdown: short enough to read at a glance beside the map, updated as
+the run goes and completed with the metrics at the end. No Rerun here."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class RunState:
+    """The run at one keyframe (or at its end)."""
+
+    method: str
+    pose_index: int
+    num_poses: int  # in the log
+    detections: int  # so far
+    landmarks: int
+    switches: int
+    nulls: int  # detections left to the null hypothesis now
+    error_m: float | None = None  # the newest pose's distance to ground truth, when known
+
+
+def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> str:
+    """While the run goes: where it is and its counts. At the last pose: the counts, and with
+    `metrics` the errors and association counts against ground truth."""
+    done = state.pose_index >= state.num_poses - 1
+    where = (
+        f"{state.num_poses} poses, done"
+        if done
+        else (f"pose {state.pose_index} of {state.num_poses - 1}")
+    )
+    lines = [
+        f"**{state.method}**: {where}",
+        "",
+        "| detections | landmarks | switches | null hypothesis |",
+        "|---|---|---|---|",
+        f"| {state.detections} | {state.landmarks} | {state.switches} | {state.nulls} |",
+    ]
+    if not metrics:
+        if state.error_m is not None:
+            lines += ["", f"Newest pose: {state.error_m:.2f} m from ground truth."]
+        return "\n".join(lines)
+    t, r = metrics["translation_error_m"], metrics["rotation_error_rad"]
+    a = metrics["association"]
+    lines += [
+        "",
+        "| error | max | mean | median | RMSE |",
+        "|---|---|---|---|---|",
+        f"| translation (m) | {t['max']:.3f} | {t['mean']:.3f} | {t['median']:.3f} "
+        f"| {t['rmse']:.3f} |",
+        f"| rotation (rad) | {r['max']:.4f} | {r['mean']:.4f} | {r['median']:.4f} "
+        f"| {r['rmse']:.4f} |",
+        "",
+        f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
+    ]
+    return "\n".join(lines)

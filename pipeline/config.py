@@ -1,6 +1,7 @@
 """Typed configuration: defaults in configs/default.toml, overridden by a user's TOML file.
 
-Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load.
+Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load;
+`load_config` checks what spans keys.
 """
 
 from __future__ import annotations
@@ -9,7 +10,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from pipeline import settings
-from pipeline.settings import ANY, POSITIVE, PROBABILITY, at_least, between, one_of, setting
+from pipeline.settings import (
+    ANY,
+    FRACTION,
+    POSITIVE,
+    PROBABILITY,
+    at_least,
+    between,
+    one_of,
+    setting,
+)
 
 MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
 FIRST_CHOICES = ("joint", "prediction", "weights")
@@ -37,6 +47,7 @@ class AssociationConfig:
 @dataclass(frozen=True)
 class LandmarkConfig:
     use_relative_pose: bool
+    anchor_sigma_m: float = setting(POSITIVE)
 
 
 @dataclass(frozen=True)
@@ -69,6 +80,18 @@ class MergeConfig:
 
 
 @dataclass(frozen=True)
+class NoiseConfig:
+    estimate: bool
+    odometry_scale: float = setting(POSITIVE)
+    measurement_scale: tuple[float, float, float] = setting(POSITIVE)
+    update_every: int = setting(at_least(1))
+    window: int = setting(at_least(1))
+    min_pairings: int = setting(at_least(1))
+    min_scale: float = setting(FRACTION)
+    max_scale: float = setting(at_least(1.0))
+
+
+@dataclass(frozen=True)
 class Isam2Config:
     relinearize_threshold: float = setting(at_least(0.0))
     relinearize_skip: int = setting(at_least(1))
@@ -88,10 +111,19 @@ class Config:
     gpda: GpdaConfig
     mixture: MixtureConfig
     merges: MergeConfig
+    noise: NoiseConfig
     isam2: Isam2Config
     prior: PriorConfig
 
 
 def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
-    return settings.load(Config, settings.config_path("default.toml"), path)
+    default = settings.config_path("default.toml")
+    config = settings.load(Config, default, path)
+    n = config.noise
+    settings.require(
+        all(n.min_scale <= x <= n.max_scale for x in (n.odometry_scale, *n.measurement_scale)),
+        path if path is not None else default,
+        "noise.odometry_scale and measurement_scale must lie within min_scale..max_scale",
+    )
+    return config

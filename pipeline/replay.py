@@ -133,6 +133,10 @@ def compute_metrics(
         "association_one_to_one": evaluation.association_scores(truth, chosen),
         "switches": result.switches,
         "merges": result.merges,
+        "noise_scales": {
+            "odometry": result.noise.odometry,
+            "measurement": list(result.noise.measurement),
+        },
     }
 
 

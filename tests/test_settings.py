@@ -79,7 +79,7 @@ def test_a_setting_outside_its_range_is_refused_naming_the_key(tmp_path, line):
     assert "\n" not in str(raised.value)
 
 
-NEW_BACKEND_SETTINGS = {  # the association, mixture and merge keys of back-end v2
+NEW_BACKEND_SETTINGS = {  # the association, mixture, merge and noise keys of back-end v2
     "[association]\nnull_model = 'gaussian'": "'association.null_model' must be one of relative",
     "[association]\njoint_confidence = 1.0": "'association.joint_confidence' must be in (0, 1)",
     "[association]\nambiguity_log_odds = -1.0": "'association.ambiguity_log_odds' must be >= 0",
@@ -91,11 +91,17 @@ NEW_BACKEND_SETTINGS = {  # the association, mixture and merge keys of back-end 
     "[merges]\nlocal_confidence = 0.0": "'merges.local_confidence' must be in (0, 1)",
     "[merges]\nloop_log_odds = -0.5": "'merges.loop_log_odds' must be >= 0",
     "[merges]\nsearch_sigmas = 0.0": "'merges.search_sigmas' must be > 0",
+    "[landmarks]\nanchor_sigma_m = 0.0": "'landmarks.anchor_sigma_m' must be > 0",
+    "[noise]\nmin_scale = 0.0": "'noise.min_scale' must be in (0, 1]",
+    "[noise]\nmax_scale = 0.5": "'noise.max_scale' must be >= 1",
+    "[noise]\nmeasurement_scale = [1.0, -1.0, 1.0]": "'noise.measurement_scale[1]' must be > 0",
+    "[noise]\nwindow = 0": "'noise.window' must be >= 1, got 0",
+    "[noise]\nodometry_scale = 500.0": "noise.odometry_scale and measurement_scale must lie",
 }
 
 
 @pytest.mark.parametrize("text", sorted(NEW_BACKEND_SETTINGS))
-def test_the_association_and_merge_keys_are_refused_outside_their_ranges(tmp_path, text):
+def test_the_back_end_v2_keys_are_refused_outside_their_ranges(tmp_path, text):
     config = tmp_path / "bad.toml"
     config.write_text(text + "\n")
     with pytest.raises(InputError) as raised:
@@ -115,7 +121,7 @@ def test_prior_log_odds_takes_any_finite_number(tmp_path):
 def test_the_papers_settings_load_over_the_defaults():
     paper = load_config(settings.config_path("paper.toml"))
     assert (paper.association.null_model, paper.mixture.first_choice) == ("literal", "weights")
-    assert not paper.merges.enabled
+    assert not paper.merges.enabled and not paper.noise.estimate
     assert paper.isam2 == load_config().isam2
 
 

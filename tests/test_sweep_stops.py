@@ -75,12 +75,14 @@ def start_sweep(folder: Path) -> tuple[subprocess.Popen, Path]:
         stderr=subprocess.PIPE,
         text=True,
     )
-    wait_for(lambda: list(out.glob("runs/*/*/*/metrics.json")), "the first run")
+    wait_for(lambda: finished(out), "the first run")
     return sweep, out
 
 
 def finished(out: Path) -> set[Path]:
-    return set(out.glob("runs/*/*/*/metrics.json"))
+    """The runs' metrics swapped into place; not those of a staging folder (`.NAME...staging`,
+    which pathlib's `*` matches too) that a killed sweep never swaps in."""
+    return set(out.glob("runs/*/*/[!.]*/metrics.json"))
 
 
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])

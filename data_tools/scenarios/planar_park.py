@@ -78,8 +78,11 @@ class BiasedOdometryConfig:
     bias_scale_sigma: float
     bias_yaw_sigma_rad: float
     bias_correlation: float
-    stated_flat_variance: float
     default_noise_scale: float
+    stated_sigma_x_m: float
+    stated_sigma_y_m: float
+    stated_sigma_yaw_rad: float
+    stated_flat_variance: float
 
 
 @dataclass(frozen=True)
@@ -126,6 +129,8 @@ def _check(c: PlanarParkConfig, path: Path) -> None:
     req(all(x > 0 for x in white), path, "odometry white sigmas must be positive")
     req(o.bias_scale_sigma >= 0 and o.bias_yaw_sigma_rad >= 0, path, "odometry bias sigmas >= 0")
     req(0 <= o.bias_correlation < 1, path, "odometry.bias_correlation must be in [0, 1)")
+    stated = (o.stated_sigma_x_m, o.stated_sigma_y_m, o.stated_sigma_yaw_rad)
+    req(all(x > 0 for x in stated), path, "odometry stated sigmas must be positive")
     req(o.stated_flat_variance > 0, path, "odometry.stated_flat_variance must be positive")
     req(o.default_noise_scale >= 0, path, "odometry.default_noise_scale must be >= 0")
 
@@ -217,15 +222,15 @@ def biased_planar_odometry(
 
 
 def stated_odometry_covariance(o: BiasedOdometryConfig, scale: float, true: bool) -> np.ndarray:
-    """What the log says, in Pose3 tangent order: the white sigmas (and, with `true`, the
+    """What the log says, in Pose3 tangent order: the stated sigmas (and, with `true`, the
     bias's stationary sigmas added as if white) plus the flat variances."""
-    yaw = o.white_sigma_yaw_rad**2
-    x = o.white_sigma_x_m**2
+    yaw = o.stated_sigma_yaw_rad**2
+    x = o.stated_sigma_x_m**2
     if true:
         yaw += (scale * o.bias_yaw_sigma_rad) ** 2
         x += (scale * o.bias_scale_sigma) ** 2  # per metre of step; steps are ~1 m or less
     flat = o.stated_flat_variance
-    return np.diag([flat, flat, yaw, x, o.white_sigma_y_m**2, flat])
+    return np.diag([flat, flat, yaw, x, o.stated_sigma_y_m**2, flat])
 
 
 # --- what the scanner sees --------------------------------------------------------------------

@@ -64,6 +64,7 @@ class Candidates:
     residuals: np.ndarray | None = None
     pose_jacobians: np.ndarray | None = None
     landmark_jacobians: np.ndarray | None = None
+    innovation_covariances: np.ndarray | None = None  # R of each candidate
 
     @staticmethod
     def none(searched: int = 0) -> Candidates:
@@ -307,6 +308,7 @@ class CandidateScorer:
             residuals=s.residual[passed][keep] if self.keep_joint else None,
             pose_jacobians=hx[passed][keep] if self.keep_joint else None,
             landmark_jacobians=hl[passed][keep] if self.keep_joint else None,
+            innovation_covariances=R[passed][keep] if self.keep_joint else None,
         )
 
     @staticmethod

@@ -18,8 +18,13 @@ def pose_from_message(translation, rotation) -> gtsam.Pose3:
     )
 
 
-def odometry_factor(from_key: int, to_key: int, odometry: Odometry) -> gtsam.BetweenFactorPose3:
-    noise = gtsam.noiseModel.Gaussian.Covariance(np.reshape(odometry.covariance, (6, 6)))
+def odometry_factor(
+    from_key: int, to_key: int, odometry: Odometry, covariance: np.ndarray | None = None
+) -> gtsam.BetweenFactorPose3:
+    """The odometry as a between factor, with its covariance (or `covariance`, rescaled)."""
+    if covariance is None:
+        covariance = np.reshape(odometry.covariance, (6, 6))
+    noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
     return gtsam.BetweenFactorPose3(
         from_key, to_key, pose_from_message(odometry.translation, odometry.rotation), noise
     )
@@ -57,7 +62,11 @@ def virtual_stereo_covariance(
 
 
 def point_measurement_factor(
-    pose_key: int, landmark_key: int, detection: Detection, information_scale: float = 1.0
+    pose_key: int,
+    landmark_key: int,
+    detection: Detection,
+    information_scale: float = 1.0,
+    covariance: np.ndarray | None = None,
 ) -> gtsam.GenericStereoFactor3D:
     """Bearing/elevation/range as a virtual stereo measurement; `information_scale` < 1 weakens
     it (GPDA's weights).
@@ -67,8 +76,10 @@ def point_measurement_factor(
     magnitude: a direction noise that is not the same in every tangent direction (a planar
     sensor's elevation, far tighter than its bearing) would be weighed in the wrong axes there.
     A stereo camera looking along the measured direction has a fixed frame instead, so the
-    detection's covariance, anisotropic and correlated, is kept whole."""
-    covariance = np.reshape(detection.covariance, (3, 3))
+    detection's covariance (or `covariance`, a rescaled one), anisotropic and correlated, is
+    kept whole."""
+    if covariance is None:
+        covariance = np.reshape(detection.covariance, (3, 3))
     mapped = virtual_stereo_covariance(detection.elevation, detection.range, covariance)
     noise = gtsam.noiseModel.Gaussian.Covariance(mapped / information_scale)
     camera = gtsam.Cal3_S2Stereo(1.0, 1.0, 0.0, 0.0, 0.0, detection.range)

@@ -43,6 +43,7 @@ class PairSet:
     differences: np.ndarray  # (P, d): estimate of source minus estimate of target
     covariance: np.ndarray  # (P d, P d): joint covariance of the stacked differences
     log_prior: np.ndarray  # (P,): log odds of "the same" before the geometry is seen
+    loop: np.ndarray  # (P,) bool: the pair would close a loop (its target not seen lately)
     # Whether two landmarks could be one (their difference passes the gate): a pair and a rival
     # that differ only by such landmarks are both right, and merges will join all three.
     alike: Callable[[int, int], bool] = lambda a, b: False
@@ -194,25 +195,51 @@ def _same_but_alike(pair_set: PairSet, p: tuple[int, int], q: tuple[int, int]) -
     return pair_set.alike(x, y)
 
 
+def _pulling_their_weight(pair_set: PairSet, chosen: list[int], minimum: float) -> list[int]:
+    """The pairs of `chosen` each of which adds at least `minimum` to the others' score: a pair
+    that agrees with a sure set only by chance adds little, however sure the set."""
+    chosen = list(chosen)
+    while chosen:
+        total = pair_set.score(chosen)
+        adds = [total - pair_set.score([q for q in chosen if q != p]) for p in chosen]
+        worst = int(np.argmin(adds))
+        if adds[worst] >= minimum:
+            break
+        chosen.pop(worst)
+    return chosen
+
+
 def pairs_to_merge(
     pair_set: PairSet,
     confidence: float,
-    min_log_odds: float,
+    loop_log_odds: float,
+    local_log_odds: float,
     ambiguity_log_odds: float,
     max_nodes: int,
 ) -> list[tuple[int, int]]:
-    """The pairs of the best set, if it beats merging nothing by `min_log_odds`, that no rival
-    comes within `ambiguity_log_odds` of.
+    """The pairs of the best set that are sure enough and that no rival comes close to.
 
-    A rival of pair (a, b) is the best set that pairs a or b with another landmark (one alike
-    to the other of them does not count). An unfinished search decides nothing."""
+    Each pair kept must add `local_log_odds` to the score of the others. The best set's pairs
+    that close no loop are kept if together they reach `local_log_odds`;
+    those that close a loop only if they add `loop_log_odds` to what the others score (a
+    loop closure must stand on its own evidence, not borrow a sure duplicate's). A pair is
+    then dropped if a rival, the best set that pairs one of its landmarks with another
+    landmark (one alike to the other of them does not count), comes within
+    `ambiguity_log_odds` of the best set. An unfinished search decides nothing."""
     if not pair_set.pairs:
         return []
     best, score, finished = best_pairs(pair_set, confidence, max_nodes)
-    if not finished or not best or score < min_log_odds:
+    if not finished or not best:
         return []
-    kept = []
-    for p in best:
+    best = _pulling_their_weight(pair_set, list(best), local_log_odds)
+    score = pair_set.score(best)
+    local = [p for p in best if not pair_set.loop[p]]
+    local_score = pair_set.score(local)
+    kept = local if local_score >= local_log_odds else []
+    if len(local) < len(best) and score - local_score >= loop_log_odds:
+        kept = list(best)
+    uncontested = []
+    for p in kept:
         a, b = pair_set.pairs[p]
         rivals = [
             q
@@ -228,7 +255,13 @@ def pairs_to_merge(
                 contested = True
                 break
         if not contested:
-            kept.append(p)
-    if kept and pair_set.score(kept) < min_log_odds:
-        return []  # what is left without the contested pairs is not enough
-    return [pair_set.pairs[p] for p in kept]
+            uncontested.append(p)
+    loops = [p for p in uncontested if pair_set.loop[p]]
+    if (
+        loops
+        and pair_set.score(uncontested)
+        - pair_set.score([p for p in uncontested if not pair_set.loop[p]])
+        < loop_log_odds
+    ):
+        uncontested = [p for p in uncontested if not pair_set.loop[p]]
+    return [pair_set.pairs[p] for p in uncontested]

@@ -26,6 +26,7 @@ class Landmark:
     class_probabilities: np.ndarray
     # The marginal covariance when last computed: an upper bound while no factor is removed.
     covariance_bound: np.ndarray | None = None
+    anchor: int | None = None  # solver handle of its weak prior (point landmarks)
 
     @property
     def map_class(self) -> int:

@@ -45,7 +45,7 @@ class Measurement:
                 pose_key, landmark_key, self.detection.relative_pose, information_scale
             )
         return factors.point_measurement_factor(
-            pose_key, landmark_key, self.detection, information_scale
+            pose_key, landmark_key, self.detection, information_scale, self.covariance
         )
 
     def initial_landmark(self, pose: gtsam.Pose3):
@@ -57,14 +57,22 @@ class Measurement:
 
 
 def make_measurement(
-    pose_index: int, detection_index: int, detection: Detection, use_relative_pose: bool
+    pose_index: int,
+    detection_index: int,
+    detection: Detection,
+    use_relative_pose: bool,
+    point_scale: np.ndarray | None = None,
 ) -> Measurement:
+    """The detection as the back-end uses it. `point_scale` (D, diagonal) rescales a point
+    measurement's covariance to D Gamma D: the noise scales the back-end estimated."""
     if use_relative_pose and detection.relative_pose is not None:
         kind = LandmarkKind.POSE
         covariance = np.reshape(detection.relative_pose.covariance, (6, 6))
     else:
         kind = LandmarkKind.POINT
         covariance = np.reshape(detection.covariance, (3, 3))
+        if point_scale is not None:
+            covariance = point_scale @ covariance @ point_scale
     covariance = 0.5 * (covariance + covariance.T)
     relative = detection.relative_pose if kind is LandmarkKind.POSE else None
     return Measurement(

@@ -179,13 +179,15 @@ class MergeFinder:
                 differences=np.array([differences[p] for p in group]),
                 covariance=difference_covariance(joint, chosen, slots, DIM),
                 log_prior=log_prior[group],
+                loop=np.array([loop[p] for p in group]),
                 alike=alike,
             )
-            closes_loop = any(loop[p] for p in group)
+            closes_loop = bool(pair_set.loop.any())
             merged += pairs_to_merge(
                 pair_set,
                 c.confidence if closes_loop else c.local_confidence,
-                c.loop_log_odds if closes_loop else c.local_log_odds,
+                c.loop_log_odds,
+                c.local_log_odds,
                 c.ambiguity_log_odds,
                 c.max_search_nodes,
             )

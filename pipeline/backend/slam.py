@@ -8,6 +8,7 @@ result = backend.result()
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass, field
 
@@ -22,9 +23,12 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, make_method
+from pipeline.backend.noise import NoiseScales, updated
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 from pipeline.log.messages import Detection, Odometry
+
+logger = logging.getLogger(__name__)
 
 # Cells of the landmark index: about the spread of a search, so a query touches few cells.
 INDEX_CELL_SIZE_M = 10.0
@@ -53,6 +57,7 @@ class BackendResult:
     landmarks: LandmarkMap
     switches: int = 0
     merges: int = 0
+    noise: NoiseScales | None = None  # the noise scales at the end
     step_seconds: list[float] = field(default_factory=list)
 
 
@@ -77,6 +82,8 @@ class Backend:
             else None
         )
         self.merges = 0
+        n = config.noise
+        self.noise = NoiseScales(n.odometry_scale, tuple(n.measurement_scale))
         self.records: list[AssociationRecord] = []
         self.num_poses = 0
         self.switches = 0
@@ -103,15 +110,10 @@ class Backend:
             return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
         step = pose_from_message(odometry.translation, odometry.rotation)
         pose = self.solver.pose(X(index - 1)).compose(step)
-        self.solver.add(odometry_factor(X(index - 1), X(index), odometry))
+        covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
+        self.solver.add(odometry_factor(X(index - 1), X(index), odometry, covariance))
         self.solver.insert(X(index), pose)
-        return PosePrediction(
-            index,
-            X(index - 1),
-            pose,
-            step.inverse().AdjointMap(),
-            np.reshape(odometry.covariance, (6, 6)),
-        )
+        return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
 
     def add_keyframe(
         self, odometry: Odometry | None, detections: list[Detection]
@@ -122,8 +124,10 @@ class Backend:
             raise ValueError("odometry is needed for every keyframe but the first")
         prediction = self.predict(odometry)
         self.context.prediction = prediction
+        point_scale = self.noise.measurement_matrix()
+        use_pose = self.config.landmarks.use_relative_pose
         measurements = [
-            make_measurement(prediction.pose_index, k, d, self.config.landmarks.use_relative_pose)
+            make_measurement(prediction.pose_index, k, d, use_pose, point_scale)
             for k, d in enumerate(detections)
         ]
         if self.method.uses_candidates:
@@ -146,6 +150,7 @@ class Backend:
         if merged:
             switched += self.method.refine(self.context.after_update(self.solver.update()))
         switched = self._changed(switched)
+        self._rescale_noise(prediction.pose_index)
         for record in switched:
             self.context.seen(record)
         self.switches += len(switched)
@@ -167,6 +172,18 @@ class Backend:
                 self._reported[key] = r.landmark_id
                 changed.append(r)
         return changed
+
+    def _rescale_noise(self, pose_index: int) -> None:
+        """Every few keyframes, the noise scales corrected by the latest sure pairings."""
+        n = self.config.noise
+        if not n.estimate or pose_index % n.update_every:
+            return
+        corrections = self.context.innovations.corrections()
+        if corrections is None:
+            return
+        self.noise = updated(self.noise, corrections, (n.min_scale, n.max_scale))
+        self.context.innovations.clear()
+        logger.debug("pose %d: noise scales %s", pose_index, self.noise)
 
     def merge(self, pose_index: int) -> list[tuple[int, int]]:
         """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""
@@ -197,5 +214,6 @@ class Backend:
             landmarks=self.landmarks,
             switches=self.switches,
             merges=self.merges,
+            noise=self.noise,
             step_seconds=self.step_seconds,
         )

@@ -1,13 +1,35 @@
 """A thin iSAM2 wrapper: batched factor additions and removals, handles for factors, and the
-estimates and marginals the association step asks for."""
+estimates and marginals the association step asks for.
+
+A valid graph can still defeat Cholesky: GTSAM refuses a frontal block whose conditioning is
+too poor ("Indeterminate linear system"), which stiff odometry (variances of 1e-6 on the
+degrees of freedom a planar robot does not move in) beside loose landmarks can produce. Then
+the whole graph is solved again with QR factorisation, which does without that test, and the
+solver keeps QR from there on.
+"""
 
 from __future__ import annotations
+
+import logging
 
 import gtsam
 import numpy as np
 
 from pipeline.config import Isam2Config
-from pipeline.errors import SolverError, first_line
+from pipeline.errors import SolverError
+
+logger = logging.getLogger(__name__)
+
+
+def gtsam_reason(message: str) -> str:
+    """GTSAM's explanation in one line: its first sentence, with the variable it names."""
+    lines = [line.strip() for line in message.strip().splitlines()]
+    head = []
+    for line in lines:
+        if not line:
+            break
+        head.append(line)
+    return " ".join(head) or "unknown error"
 
 
 class Isam2Solver:
@@ -18,17 +40,23 @@ class Isam2Solver:
     """
 
     def __init__(self, config: Isam2Config):
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(config.relinearize_threshold)
-        params.relinearizeSkip = config.relinearize_skip
-        params.setFactorization(config.factorization)
-        self.isam = gtsam.ISAM2(params)
+        self.config = config
+        self.factorization = config.factorization
+        self.isam = gtsam.ISAM2(self._params(self.factorization))
+        self._committed: dict[int, gtsam.NonlinearFactor] = {}  # handle -> factor in iSAM2
         self._pending: dict[int, gtsam.NonlinearFactor] = {}  # handle -> factor, in order
         self._values = gtsam.Values()
         self._removals: list[int] = []
         self._slots: dict[int, int] = {}
         self._next_handle = 0
         self.num_updates = 0
+
+    def _params(self, factorization: str) -> gtsam.ISAM2Params:
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.config.relinearize_threshold)
+        params.relinearizeSkip = self.config.relinearize_skip
+        params.setFactorization(factorization)
+        return params
 
     def add(self, factor: gtsam.NonlinearFactor) -> int:
         handle = self._next_handle
@@ -43,6 +71,7 @@ class Isam2Solver:
         """Take a factor out: a committed one at the next update, a pending one at once."""
         if self._pending.pop(handle, None) is None:
             self._removals.append(self._slots.pop(handle))
+            del self._committed[handle]
 
     @property
     def has_pending(self) -> bool:
@@ -57,15 +86,54 @@ class Isam2Solver:
         try:
             result = self.isam.update(graph, self._values, self._removals)
         except RuntimeError as exc:
-            message = f"iSAM2 update {self.num_updates} failed: {first_line(str(exc))}"
-            raise SolverError(message) from exc
-        for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
-            self._slots[handle] = slot
+            reason = gtsam_reason(str(exc))
+            if self.factorization == "QR" or "Indeterminate" not in reason:
+                raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+            logger.warning(
+                "iSAM2 update %d: %s; solving the graph again with QR factorisation",
+                self.num_updates,
+                reason,
+            )
+            result = self._solve_again_with_qr()
+        else:
+            for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
+                self._slots[handle] = slot
+        self._committed.update(self._pending)
         self._values = gtsam.Values()
         self._pending = {}
         self._removals = []
         self.num_updates += 1
         return set(result.getMarkedKeys())
+
+    def _solve_again_with_qr(self) -> gtsam.ISAM2Result:
+        """A new iSAM2 with QR factorisation, given every factor in the graph (committed and
+        pending, removals left out) at the linearisation point the old one had."""
+        theta = self.isam.getLinearizationPoint()
+        handles = [*self._committed, *self._pending]
+        factors = {**self._committed, **self._pending}
+        graph = gtsam.NonlinearFactorGraph()
+        keys: set[int] = set()
+        for handle in handles:
+            graph.add(factors[handle])
+            keys.update(factors[handle].keys())
+        values = gtsam.Values(theta)
+        for key in theta.keys():  # noqa: SIM118 - gtsam.Values iterates as a pybind object
+            if key not in keys:  # a variable every factor of which was removed
+                values.erase(key)
+        new = gtsam.Values(self._values)  # pending values the failed update did not take
+        for key in new.keys():  # noqa: SIM118
+            if values.exists(key):
+                new.erase(key)
+        values.insert(new)
+        self.factorization = "QR"
+        self.isam = gtsam.ISAM2(self._params("QR"))
+        try:
+            result = self.isam.update(graph, values)
+        except RuntimeError as exc:
+            reason = gtsam_reason(str(exc))
+            raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+        self._slots = dict(zip(handles, result.getNewFactorsIndices(), strict=True))
+        return result
 
     def pose(self, key: int) -> gtsam.Pose3:
         return self.isam.calculateEstimatePose3(key)

@@ -6,15 +6,17 @@ from abc import ABC, abstractmethod
 from collections import defaultdict
 from dataclasses import dataclass, field
 
+import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import class_posterior_update
 from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
 from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
-from pipeline.backend.landmarks import LandmarkMap
+from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.movement import MovementTracker, is_landmark_key, key_index
+from pipeline.backend.noise import ScaleEstimator
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 
@@ -35,9 +37,13 @@ class BackendContext:
         init=False, default_factory=lambda: defaultdict(list)
     )
     last_seen: dict[int, int] = field(init=False, default_factory=dict)  # latest pose index
+    # Sure pairings' innovations, for the noise scales (`noise.py`): point detections only.
+    innovations: ScaleEstimator = field(init=False)
 
     def __post_init__(self) -> None:
         self.movement = MovementTracker(self.config.isam2.relinearize_threshold)
+        n = self.config.noise
+        self.innovations = ScaleEstimator(3, n.window, n.min_pairings, (n.min_scale, n.max_scale))
 
     def register(self, record: AssociationRecord) -> None:
         """Index a new record by the landmarks it may be; the one it is was seen now."""
@@ -64,6 +70,14 @@ class BackendContext:
         position = value.translation() if hasattr(value, "translation") else value
         landmark = self.landmarks.create(m.kind, position)
         self.solver.insert(L(landmark.id), value)
+        if m.kind is LandmarkKind.POINT:
+            # A point seen only from where its measurement cannot be projected (behind the
+            # virtual camera of every factor on it, after a gross error) would have no
+            # information at all; a prior kilometres wide keeps it determined, and weighs
+            # nothing otherwise.
+            sigma = self.config.landmarks.anchor_sigma_m
+            noise = gtsam.noiseModel.Isotropic.Sigma(3, sigma)
+            landmark.anchor = self.solver.add(gtsam.PriorFactorPoint3(L(landmark.id), value, noise))
         self.observe_classes(m, [landmark.id], np.ones(1))
         return landmark.id
 

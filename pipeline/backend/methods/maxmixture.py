@@ -157,6 +157,9 @@ class MaxMixture(MixtureMethod):
             record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=k)
             record.handles = [self.context.add_factor(m, ids[k])]
             records.append(self.track(record))
+            if m.kind is LandmarkKind.POINT:  # a sure pairing: its innovation tells the noise
+                R = c.innovation_covariances[k]
+                self.context.innovations.add(c.residuals[k], R - m.covariance, m.covariance)
         return records
 
     def _null_log_density(self, m: Measurement) -> float:
@@ -285,6 +288,9 @@ class MaxMixture(MixtureMethod):
             if record not in context.records_of[survivor]:
                 context.records_of[survivor].append(record)
             self.retrack(record, L(survivor))
+        anchor = lms[duplicate].anchor
+        if anchor is not None:
+            context.solver.remove(anchor)
         context.last_seen[survivor] = max(
             context.last_seen.get(survivor, -1), context.last_seen.pop(duplicate, -1)
         )

@@ -1,0 +1,122 @@
+"""A keyframe's detections associated together, on small linear problems worked by hand:
+residual = landmark - pose translation, so H_pose = [0 | -I] and H_landmark = I."""
+
+import math
+
+import numpy as np
+import pytest
+
+from pipeline.backend.association import gaussian_log_density
+from pipeline.backend.joint_association import (
+    NONE,
+    DetectionOptions,
+    KeyframeProblem,
+    associate_keyframe,
+    indistinguishable,
+    score,
+)
+
+H_POSE = np.hstack([np.zeros((3, 3)), -np.eye(3)])
+GAMMA = np.diag([0.05**2] * 3)
+NULL_DENSITY = -10.0  # log of the null's density, the same for every detection here
+
+
+LOG_PRIOR = math.log(0.9)
+
+
+def detection(residuals, slots, log_prior=LOG_PRIOR) -> DetectionOptions:
+    residuals = np.atleast_2d(np.asarray(residuals, dtype=float)).reshape(-1, 3)
+    n = len(residuals)
+    return DetectionOptions(
+        residuals=residuals,
+        pose_jacobians=np.broadcast_to(H_POSE, (n, 3, 6)).copy(),
+        landmark_jacobians=np.broadcast_to(np.eye(3), (n, 3, 3)).copy(),
+        slots=np.array(slots, dtype=int),
+        log_prior=np.full(n, log_prior),
+        covariance=GAMMA,
+        null_log_density=NULL_DENSITY,
+    )
+
+
+def problem(detections, pose_sigmas, landmarks: int, landmark_sigma=0.05) -> KeyframeProblem:
+    n = 6 + 3 * landmarks
+    covariance = np.eye(n) * landmark_sigma**2
+    covariance[:6, :6] = np.diag(np.asarray(pose_sigmas, dtype=float) ** 2)
+    offsets = np.arange(landmarks) * 3 + 6
+    return KeyframeProblem(detections, covariance, offsets, np.full(landmarks, 3), 0.95)
+
+
+def test_score_of_one_pairing_is_its_marginal_likelihood_and_priors():
+    det = detection([[0.1, -0.2, 0.0]], [0])
+    p = problem([det, detection([], [])], [0.0, 0.0, 0.0, 0.3, 0.3, 0.3], landmarks=1)
+    S = np.diag([0.3**2 + 0.05**2 + 0.05**2] * 3)
+    expected = gaussian_log_density(det.residuals[0], S) + math.log(0.9) + NULL_DENSITY
+    assert score(p, [0, NONE]) == pytest.approx(expected)
+    assert score(p, [NONE, NONE]) == pytest.approx(2 * NULL_DENSITY)
+
+
+def test_detections_that_agree_on_the_pose_outweigh_one_that_fits_the_prediction():
+    # The pose slid 3 m sideways (y sigma 3 m). Two detections see their landmarks 3 m off the
+    # prediction, in the same direction; a third fits a lookalike exactly where predicted.
+    truthful_a = detection([[0.0, 3.0, 0.0]], [0])
+    truthful_b = detection([[0.0, 3.02, 0.01]], [1])
+    alias = detection([[0.0, 0.0, 0.0]], [2])
+    p = problem([truthful_a, truthful_b, alias], [1e-3] * 3 + [0.05, 3.0, 0.05], landmarks=3)
+    decision = associate_keyframe(p, ambiguity_log_odds=3.0, max_nodes=1000)
+    assert decision.finished
+    assert decision.assignment == [0, 0, NONE]
+    assert decision.unique[:2] == [True, True]
+    # one by one, at the prediction, the lookalike would have been the best fit of all
+    assert np.linalg.norm(alias.residuals[0]) < np.linalg.norm(truthful_a.residuals[0])
+
+
+def test_a_pairing_with_a_close_rival_is_not_made():
+    # Two landmarks 7 m apart, the pose known to 5 m along the line between them.
+    det = detection([[0.0, -3.4, 0.0], [0.0, 3.6, 0.0]], [0, 1])
+    p = problem([det], [1e-3] * 3 + [0.05, 5.0, 0.05], landmarks=2)
+    decision = associate_keyframe(p, ambiguity_log_odds=3.0, max_nodes=1000)
+    assert decision.assignment == [0]  # the nearer one is best ...
+    assert decision.unique == [False]  # ... but the other is almost as likely
+    # with the pose known to 0.3 m, the same two landmarks seen from where the pose really is
+    known = detection([[0.0, 0.1, 0.0], [0.0, 7.1, 0.0]], [0, 1])
+    sure = associate_keyframe(
+        problem([known], [1e-3] * 3 + [0.05, 0.3, 0.05], landmarks=2), 3.0, 1000
+    )
+    assert sure.assignment == [0] and sure.unique == [True]
+
+
+def test_a_landmark_mapped_twice_is_no_rival():
+    # Two estimates of one landmark 3 cm apart: choosing either is right.
+    det = detection([[0.0, 0.02, 0.0], [0.0, -0.01, 0.0]], [0, 1])
+    p = problem([det], [1e-3] * 3 + [0.05, 0.5, 0.05], landmarks=2)
+    assert indistinguishable(p, 0, 0, 1)
+    decision = associate_keyframe(p, ambiguity_log_odds=3.0, max_nodes=1000)
+    assert decision.assignment != [NONE] and decision.unique == [True]
+
+
+def test_nothing_fits_goes_to_the_null():
+    far = detection([[0.0, 2.0, 0.0]], [0])  # 40 sigma off, with the pose known
+    p = problem([far], [1e-3] * 3 + [0.05] * 3, landmarks=1)
+    assert associate_keyframe(p, 3.0, 1000).assignment == [NONE]
+
+
+def test_one_landmark_takes_one_detection_a_keyframe():
+    a = detection([[0.0, 0.0, 0.0]], [0])
+    b = detection([[0.0, 0.01, 0.0]], [0])
+    p = problem([a, b], [1e-3] * 3 + [0.05] * 3, landmarks=1)
+    assignment = associate_keyframe(p, 3.0, 1000).assignment
+    assert sorted(assignment) == [NONE, 0]
+
+
+def test_an_exhausted_search_decides_nothing():
+    dets = [detection([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0]], [0, 1]) for _ in range(3)]
+    p = problem(dets, [1e-3] * 3 + [0.5] * 3, landmarks=2)
+    decision = associate_keyframe(p, 3.0, max_nodes=2)
+    assert not decision.finished and decision.assignment == [NONE] * 3
+
+
+def test_subset_keeps_the_chosen_options_in_order():
+    det = detection([[1.0, 0, 0], [2.0, 0, 0], [3.0, 0, 0]], [4, 5, 6])
+    sub = det.subset(np.array([2, 0]))
+    np.testing.assert_array_equal(sub.slots, [6, 4])
+    np.testing.assert_array_equal(sub.residuals[:, 0], [3.0, 1.0])

@@ -9,6 +9,8 @@ Parts (all by default, or `--only backend,mixture,viz,frontend`):
 - viz: replay time without and with a Rerun recording.
 - frontend: frames per second of each image stage (VO, tags, object boxes and their stereo
   range) on 1226x370 stereo pairs, one core.
+- memory (only when asked, `--only memory`: the replays take minutes): peak memory and time of
+  `inspect` and `replay --method known` on logs of 10,000 and 50,000 poses.
 """
 
 from __future__ import annotations
@@ -157,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
 
         bench_frontend.main([])
         bench_objects.main([])
+    if "memory" in parts:
+        from data_tools import bench_memory
+
+        bench_memory.main(["--out", str(args.out)])
     return 0
 
 

@@ -10,7 +10,6 @@ metres, x and y of the log's world frame (pose 0's body frame).
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +18,7 @@ from matplotlib.figure import Figure
 
 from pipeline.errors import InputError
 from pipeline.log import read_log
-from pipeline.log.mcap_io import atomic_output
+from pipeline.outputs import AtomicFile
 
 
 def read_tum(path: Path) -> np.ndarray:
@@ -87,10 +86,5 @@ def plot_runs(log_path: Path, runs: list[Path], out: Path) -> None:
     if image_format not in FigureCanvasBase.get_supported_filetypes():
         raise InputError(f"--out {out}: not an image format matplotlib writes (.png, .pdf, .svg)")
     fig = figure(log_path, runs)
-    fd, tmp = atomic_output(out)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, dpi=110, format=image_format)
-        os.replace(tmp, out)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with AtomicFile(out) as target:
+        fig.savefig(target.file, dpi=110, format=image_format)

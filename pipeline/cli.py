@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline import __version__
-from pipeline.errors import InputError, SolverError
+from pipeline.errors import InputError, SolverError, describe_os_error
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
 SCENARIOS = ("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
@@ -300,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     simulate.add_argument(
         "--odom-noise-scale", type=number_in(float, 0), metavar="K",
-        help="times the paper's added odometry noise, >= 0; the paper sweeps 0..10 "
+        help="times the paper's added odometry noise, within 0..100; the paper sweeps 0..10 "
         "(default: the scenario's)",
     )  # fmt: skip
     simulate.add_argument(
@@ -409,6 +409,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # `mmslam inspect LOG | head`: the reader has gone, nothing to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:  # a path the system refuses, a full disk
+        message, status = describe_os_error(exc)
+        print(f"mmslam {args.command}: error: {message}", file=sys.stderr)
+        return status
 
 
 if __name__ == "__main__":

@@ -1,6 +1,11 @@
 """Errors the command line turns into a one-line message: exit status 2 for bad input, 1 for a
 solver that failed on good input."""
 
+import errno
+
+# The system failed, not the path the user gave: a full disk, a quota, a file-size limit, I/O.
+SYSTEM_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.ENOMEM})
+
 
 class InputError(Exception):
     """Bad input or usage: the message is one line naming what is wrong and where."""
@@ -14,6 +19,7 @@ class LogError(InputError):
         if topic is not None and index is None:
             where = f"{topic}: "
         super().__init__(f"bad log {path}: {where}{reason}")
+        self.detail = where + reason  # what is wrong and where, without the file
         self.path = path
         self.topic = topic
         self.index = index
@@ -27,3 +33,11 @@ class SolverError(RuntimeError):
 def first_line(text: str) -> str:
     """The first non-blank line: GTSAM's messages open with a blank line and run to ten."""
     return next((line for line in text.splitlines() if line.strip()), "")
+
+
+def describe_os_error(exc: OSError) -> tuple[str, int]:
+    """One line naming the path and what the system said, and the exit status: 1 when the
+    system failed (a full disk), 2 when the path was wrong (under a file, not allowed)."""
+    where = exc.filename if exc.filename is not None else "a file"
+    reason = exc.strerror or first_line(str(exc)) or type(exc).__name__
+    return f"{where}: {reason}", 1 if exc.errno in SYSTEM_ERRNOS else 2

@@ -3,7 +3,6 @@ TUM (evo's `--ref`) and the landmarks as CSV."""
 
 from __future__ import annotations
 
-from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +43,7 @@ def export_ground_truth(
     log_path: str | Path, trajectory: Path | None = None, landmarks: Path | None = None
 ) -> list[Path]:
     """Write what is asked of the log's ground truth (under temporary names, renamed into place
-    once all of a folder's are complete). Returns the files written."""
+    once all are complete). Returns the files written."""
     if trajectory is None and landmarks is None:
         raise InputError("nothing to export: give --ground-truth FILE.tum or --landmarks FILE.csv")
     log = read_log(log_path)
@@ -56,11 +55,18 @@ def export_ground_truth(
             texts[Path(landmarks)] = ground_truth_landmarks_csv(log)
     except InputError as exc:
         raise InputError(f"{log_path}: {exc}") from None
-    by_folder: dict[Path, dict[str, str]] = defaultdict(dict)
-    for path, text in texts.items():
+    for path in texts:
         if path.is_dir():
             raise InputError(f"{path}: is a directory, expected a file name")
-        by_folder[path.parent][path.name] = text
-    for folder, files in by_folder.items():
-        outputs.write_outputs(folder, files)
+    files: list[outputs.AtomicFile] = []
+    try:
+        for path, text in texts.items():
+            files.append(outputs.AtomicFile(path, "w", encoding="utf-8", newline=""))
+            files[-1].file.write(text)
+        for out in files:
+            out.commit()
+    except BaseException:
+        for out in files:
+            out.discard()
+        raise
     return list(texts)

@@ -1,4 +1,9 @@
-"""`mmslam inspect`: what a log holds, and whether it is valid."""
+"""`mmslam inspect`: what a log holds, and whether it is valid.
+
+One streaming pass, so memory stays bounded whatever the log's length: the report keeps counts,
+never messages. After the first problem the pass goes on counting, so the topic counts are
+the file's whole.
+"""
 
 from __future__ import annotations
 
@@ -7,16 +12,70 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import LogError
-from pipeline.log import decode_log, scan_log
+from pipeline.log import schemas
+from pipeline.log.mcap_stream import McapFile
 from pipeline.log.messages import METADATA_NAME
+from pipeline.log.reader import log_metadata
+from pipeline.log.validate import LogValidator
+
+
+class _Counts:
+    """What the report says of a log's messages, counted as they stream past."""
+
+    def __init__(self) -> None:
+        self.detections = 0
+        self.by_source: Counter[str] = Counter()
+        self.by_class: Counter[int] = Counter()
+        self.with_relative_pose = 0
+        self.with_truth = 0
+        self.ground_truth_poses = 0
+        self.ground_truth_landmarks = 0
+        self.calibration = False
+        self.images: Counter[str] = Counter()
+
+    def add(self, topic: str, msg: Any) -> None:
+        if topic == schemas.DETECTIONS:
+            for d in msg.detections:
+                self.detections += 1
+                self.by_source[d.source] += 1
+                self.by_class[d.class_id] += 1
+                self.with_relative_pose += d.relative_pose is not None
+                self.with_truth += d.truth_landmark_id is not None
+        elif topic == schemas.GT_POSE:
+            self.ground_truth_poses += 1
+        elif topic == schemas.GT_LANDMARKS:
+            self.ground_truth_landmarks = len(msg.landmarks)
+        elif topic == schemas.CALIBRATION:
+            self.calibration = True
+        elif topic in schemas.IMAGE_TOPICS:
+            self.images[topic] += 1
 
 
 def inspect_log(path: str | Path) -> dict[str, Any]:
     """A report of the log; `valid` is False and `problem` the one-line reason when it is not."""
     report: dict[str, Any] = {"path": str(path), "valid": False, "problem": None}
+    counts = _Counts()
     try:
-        raw = scan_log(path)
-    except LogError as exc:
+        with McapFile(path) as mcap:
+            problem, validator = None, None
+            try:
+                validator = LogValidator(mcap.path, log_metadata(mcap))
+            except LogError as exc:
+                problem = str(exc)
+            for channel, index, log_time, data in mcap.messages():
+                if problem is None and validator is not None:
+                    try:
+                        msg = validator.message(channel, index, log_time, data)
+                    except LogError as exc:
+                        problem = str(exc)
+                        continue
+                    counts.add(channel.topic, msg)
+            if problem is None and validator is not None:
+                try:
+                    validator.finish(mcap.channels.values())
+                except LogError as exc:
+                    problem = str(exc)
+    except LogError as exc:  # the container is broken: nothing more to tell
         report["problem"] = str(exc)
         return report
     report["topics"] = {
@@ -26,36 +85,30 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             "message_encoding": info.message_encoding,
             "messages": info.count,
         }
-        for topic, info in sorted(raw.topics.items())
+        for topic, info in sorted(mcap.topics.items())
     }
     stamps = [
-        t for info in raw.topics.values() for t in (info.first_ns, info.last_ns) if t is not None
+        t for info in mcap.topics.values() for t in (info.first_ns, info.last_ns) if t is not None
     ]
     report["time_span_s"] = (max(stamps) - min(stamps)) / 1e9 if stamps else 0.0
-    report["metadata"] = raw.metadata.get(METADATA_NAME)
-    try:
-        log = decode_log(raw)
-    except LogError as exc:
-        report["problem"] = str(exc)
+    report["metadata"] = next((r for n, r in mcap.metadata if n == METADATA_NAME), None)
+    if problem is not None:
+        report["problem"] = problem
         return report
-    detections = [d for message in log.detections for d in message.detections]
-    names = log.metadata.class_names
+    assert validator is not None
+    names = validator.metadata.class_names
     report.update(
         valid=True,
-        poses=log.num_poses,
-        detections=len(detections),
-        detections_by_source=dict(sorted(Counter(d.source for d in detections).items())),
-        detections_by_class={
-            names[c]: n for c, n in sorted(Counter(d.class_id for d in detections).items())
-        },
-        detections_with_relative_pose=sum(d.relative_pose is not None for d in detections),
-        detections_with_truth=sum(d.truth_landmark_id is not None for d in detections),
-        ground_truth_poses=len(log.ground_truth_poses),
-        ground_truth_landmarks=(
-            len(log.ground_truth_landmarks.landmarks) if log.ground_truth_landmarks else 0
-        ),
-        calibration=log.calibration is not None,
-        images=log.image_counts,
+        poses=validator.num_poses,
+        detections=counts.detections,
+        detections_by_source=dict(sorted(counts.by_source.items())),
+        detections_by_class={names[c]: n for c, n in sorted(counts.by_class.items())},
+        detections_with_relative_pose=counts.with_relative_pose,
+        detections_with_truth=counts.with_truth,
+        ground_truth_poses=counts.ground_truth_poses,
+        ground_truth_landmarks=counts.ground_truth_landmarks,
+        calibration=counts.calibration,
+        images=dict(counts.images),
     )
     return report
 

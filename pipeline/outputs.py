@@ -1,26 +1,58 @@
-"""The files `replay --out DIR` writes (../shared/CONTRACT.md), written all-or-nothing.
+"""The files `replay --out DIR` writes (../shared/CONTRACT.md), and how every command writes
+its outputs: all-or-nothing, whatever stops it.
 
-Every file goes to a temporary name in DIR first; only when all are complete are they renamed
-into place, so a failed run leaves an earlier run's outputs as they were. Numbers are written
-with fixed formats so that the same run gives the same bytes.
+A single file (a log, a recording, a sweep's table) is written under a temporary name beside
+it, flushed to disk and renamed over it. A set of files (a replay's output folder) is written
+into a new folder beside DIR, flushed, and swapped with DIR in one rename (Linux's
+`renameat2(RENAME_EXCHANGE)`); the old folder is deleted after. A run killed at any instant,
+SIGKILL included, leaves DIR holding the complete old set or the complete new set, never a mix.
+
+A writer holds a lock (flock) on its temporary file or folder while it lives. Whoever next
+writes the same target deletes the temporaries whose lock is free: those of runs that died.
+
+Numbers are written with fixed formats, so the same run gives the same bytes.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import fcntl
 import json
+import logging
 import os
-from collections.abc import Iterable
+import shutil
+import tempfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import IO, Any
 
 import numpy as np
 
+from pipeline.errors import InputError
 from pipeline.geometry import quaternion_from_rotation
-from pipeline.log.mcap_io import atomic_output
+
+logger = logging.getLogger(__name__)
 
 TRAJECTORY = "trajectory.tum"
 LANDMARKS = "landmarks.csv"
 ASSOCIATIONS = "associations.csv"
 METRICS = "metrics.json"
+
+PART = ".part"  # a temporary file: .NAME.RANDOM.part beside NAME
+STAGING = ".staging"  # a temporary folder: .NAME.RANDOM.staging beside NAME
+
+# Test seam: called with the name of each step of a write as it completes, so that a test can
+# stop the process between any two steps (tests/test_outputs.py kills it there).
+step_hook: Callable[[str], None] | None = None
+
+
+def _step(name: str) -> None:
+    if step_hook is not None:
+        step_hook(name)
+
+
+# ------------------------------------------------------------------------------ formats
 
 
 def trajectory_tum(stamps_s: Iterable[float], poses: Iterable[np.ndarray]) -> str:
@@ -53,24 +85,293 @@ def metrics_json(metrics: dict) -> str:
     return json.dumps(metrics, indent=2, sort_keys=True) + "\n"
 
 
-def write_outputs(out_dir: Path, files: dict[str, str], stale: Iterable[str] = ()) -> None:
-    """Write every file or none; remove `stale` files of an earlier run once all are in place."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise NotADirectoryError(f"{out_dir} exists and is not a directory")
-    temporary: dict[str, Path] = {}
+# ---------------------------------------------------------------------- the file system
+
+
+def _default_mode(kind: int) -> int:
+    """What a new file (0o666) or folder (0o777) gets under this process's umask."""
+    umask = os.umask(0)
+    os.umask(umask)
+    return kind & ~umask
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
-        for name, text in files.items():
-            fd, tmp = atomic_output(out_dir / name)
-            temporary[name] = tmp
-            with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-                f.write(text)
-    except BaseException:
-        for tmp in temporary.values():
-            tmp.unlink(missing_ok=True)
-        raise
-    for name, tmp in temporary.items():
-        os.replace(tmp, out_dir / name)
-    for name in stale:
-        if name not in files:
-            (out_dir / name).unlink(missing_ok=True)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _named(exc: OSError, path: Path) -> OSError:
+    """`exc` naming `path` (a failed write() or fsync() names no file)."""
+    return exc if exc.filename else OSError(exc.errno, exc.strerror, str(path))
+
+
+def _is_leftover(name: str, target: str) -> bool:
+    return name.startswith(f".{target}.") and name.endswith((PART, STAGING))
+
+
+def clean_leftovers(target: Path) -> None:
+    """Delete the temporaries that dead writers of `target` left beside it."""
+    try:
+        names = [n for n in os.listdir(target.parent) if _is_leftover(n, target.name)]
+    except OSError:
+        return
+    for name in names:
+        path = target.parent / name
+        try:
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:  # its writer is alive
+            os.close(fd)
+            continue
+        try:
+            if path.is_dir():
+                shutil.rmtree(path, ignore_errors=True)
+            else:
+                path.unlink(missing_ok=True)
+            logger.info("removed %s, left by a run that did not finish", path)
+        finally:
+            os.close(fd)
+
+
+def _cannot_write(path: Path, exc: OSError) -> InputError:
+    detail = exc.strerror or type(exc).__name__
+    if exc.filename is not None and Path(exc.filename) != path:
+        detail += f": {exc.filename}"
+    return InputError(f"{path}: cannot write there ({detail})")
+
+
+def atomic_output(path: Path) -> tuple[int, Path]:
+    """A new temporary file beside `path` (fd, its path), locked while the fd is open, to be
+    renamed onto `path` once complete; first, dead writers' temporaries are removed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    clean_leftovers(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=PART, dir=path.parent)
+    fcntl.flock(fd, fcntl.LOCK_EX)
+    os.fchmod(fd, _default_mode(0o666))  # mkstemp makes 0600; the result is like any new file
+    return fd, Path(tmp)
+
+
+class AtomicFile:
+    """A file at `path` that appears complete or not at all. As a context manager it commits
+    when the block ends normally and discards the temporary on an exception."""
+
+    def __init__(self, path: str | os.PathLike, mode: str = "wb", **open_args: Any):
+        self.path = Path(path)
+        try:
+            fd, self.temporary = atomic_output(self.path)
+        except OSError as exc:
+            raise _cannot_write(self.path, exc) from None
+        self.file: IO = os.fdopen(fd, mode, **open_args)
+
+    def commit(self) -> None:
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())
+            _step(f"wrote {self.path.name}")
+            os.replace(self.temporary, self.path)  # before the lock goes: no cleaner takes it
+        except BaseException as exc:
+            self.discard()
+            if isinstance(exc, OSError):
+                raise _named(exc, self.path) from None
+            raise
+        self.file.close()
+        _fsync_dir(self.path.parent)
+        _step(f"renamed {self.path.name}")
+
+    def discard(self) -> None:
+        self.file.close()
+        self.temporary.unlink(missing_ok=True)
+
+    def __enter__(self) -> AtomicFile:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write `text` to `path` all-or-nothing."""
+    with AtomicFile(path, "w", encoding="utf-8", newline="") as out:
+        out.file.write(text)
+
+
+# ------------------------------------------------------------------- folders of outputs
+
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+def _renameat2() -> Any:
+    try:
+        function = ctypes.CDLL(None, use_errno=True).renameat2
+    except AttributeError:  # not glibc >= 2.28
+        return None
+    function.argtypes = [
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_uint,
+    ]
+    return function
+
+
+_renameat2_function = _renameat2()
+
+
+def exchange(a: Path, b: Path) -> bool:
+    """Swap the paths `a` and `b` in one step; False where the system cannot."""
+    if _renameat2_function is None:
+        return False
+    done = _renameat2_function(
+        _AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE
+    )
+    if done == 0:
+        return True
+    error = ctypes.get_errno()
+    if error in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(error, os.strerror(error), str(b))
+
+
+def _subfolder(folder: Path) -> str | None:
+    """The name of a folder inside `folder`, if it holds one."""
+    with os.scandir(folder) as entries:
+        return next((e.name for e in entries if e.is_dir(follow_symlinks=False)), None)
+
+
+def _output_folder(path: str | os.PathLike) -> Path:
+    """`path` as an output folder that can be replaced whole, or an InputError saying why not."""
+    target = Path(path).resolve()
+    if target.exists() and not target.is_dir():
+        raise InputError(f"{path}: exists and is not a directory")
+    cwd = Path.cwd().resolve()
+    if target == cwd or target in cwd.parents:
+        raise InputError(f"{path}: holds the current directory; choose a folder of its own")
+    if target.is_dir():
+        inside = _subfolder(target)
+        if inside is not None:
+            raise InputError(
+                f"{path}: holds the folder {inside!r}; an output folder is replaced whole, so it "
+                "may hold files only"
+            )
+    return target
+
+
+class OutputFolder:
+    """A new version of the output folder `path`, complete or not at all. Files go into a
+    staging folder beside it, which `commit` swaps with `path` in one rename. Files already in
+    `path` that the new set does not write (nor names stale) are kept. As a context manager it
+    discards the staging folder unless `commit` ran."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.given = Path(path)
+        self.path = _output_folder(path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            clean_leftovers(self.path)
+            self.staging = Path(
+                tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=STAGING, dir=self.path.parent)
+            )
+        except OSError as exc:
+            raise _cannot_write(self.given, exc) from None
+        self._lock: int | None = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
+        fcntl.flock(self._lock, fcntl.LOCK_EX)
+
+    def commit(self, files: dict[str, str | bytes], stale: Iterable[str] = ()) -> None:
+        """Swap in the set `files` (name -> content), keeping other files already in the
+        folder except those named in `stale`."""
+        written = set(files) | set(stale)
+        for name, content in files.items():
+            self._write(name, content)
+        mode = _default_mode(0o777)
+        exists = self.path.is_dir()
+        if exists:
+            self._carry_over(written)
+            mode = self.path.stat().st_mode & 0o7777
+        os.chmod(self.staging, mode)
+        _fsync_dir(self.staging)
+        _step("staged")
+        if not exists:
+            try:
+                os.rename(self.staging, self.path)
+            except OSError as exc:  # made meanwhile by another run
+                if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                    raise
+                exists = True
+        if exists and not exchange(self.staging, self.path):
+            logger.warning("%s: no atomic exchange on this file system; renaming twice", self.path)
+            aside = self.staging.with_name(self.staging.name[: -len(STAGING)] + ".old" + STAGING)
+            os.rename(self.path, aside)
+            os.rename(self.staging, self.path)
+            os.rename(aside, self.staging)
+        _fsync_dir(self.path.parent)
+        _step("swapped")
+        shutil.rmtree(self.staging, ignore_errors=True)  # the old set
+        self._unlock()
+        _step("removed the old set")
+
+    def _write(self, name: str, content: str | bytes) -> None:
+        if not name or os.sep in name or name in (".", ".."):
+            raise ValueError(f"not a file name: {name!r}")
+        path = self.staging / name
+        data = content.encode("utf-8") if isinstance(content, str) else content
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        except OSError as exc:
+            raise _named(exc, self.given / name) from None
+        finally:
+            os.close(fd)
+        _step(f"wrote {name}")
+
+    def _carry_over(self, written: set[str]) -> None:
+        """Hard-link the old folder's other files into the new one (copy where links fail)."""
+        if (inside := _subfolder(self.path)) is not None:
+            raise InputError(f"{self.given}: a folder {inside!r} appeared in it; not replacing it")
+        for name in os.listdir(self.path):
+            old_temporary = any(_is_leftover(name, w) for w in written)
+            if name in written or old_temporary:
+                continue
+            source, target = self.path / name, self.staging / name
+            try:
+                os.link(source, target, follow_symlinks=False)
+            except OSError:
+                shutil.copy2(source, target, follow_symlinks=False)
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+    def discard(self) -> None:
+        if self._lock is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self._unlock()
+
+    def __enter__(self) -> OutputFolder:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.discard()
+
+
+def write_outputs(
+    out_dir: str | os.PathLike, files: dict[str, str], stale: Iterable[str] = ()
+) -> None:
+    """Replace the output set in `out_dir` with `files`, all or nothing (see `OutputFolder`)."""
+    with OutputFolder(out_dir) as folder:
+        folder.commit(files, stale)

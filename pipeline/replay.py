@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from pipeline import evaluation, outputs, provenance
 from pipeline.backend.factors import pose_from_message
 from pipeline.backend.slam import Backend, BackendResult
 from pipeline.config import Config
-from pipeline.errors import InputError
+from pipeline.errors import InputError, SolverError, first_line
 from pipeline.log import DetectionLog, read_log
 from pipeline.log.messages import Detection, Odometry
 from pipeline.progress import track
@@ -76,6 +77,19 @@ def _check_inputs(log: DetectionLog, method: str) -> None:
                         f"method 'known' needs truth_landmark_id on every detection: /detections "
                         f"message {index} detection {k} has none"
                     )
+
+
+@contextmanager
+def solver_failures() -> Iterator[None]:
+    """What GTSAM, or the numerics around it, throws on a graph it cannot solve ends as one
+    `SolverError` line, wherever the back-end, the evaluation or the sink called it."""
+    try:
+        yield
+    except SolverError:
+        raise
+    except (RuntimeError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        reason = first_line(str(exc)) or type(exc).__name__
+        raise SolverError(f"the back-end failed: {reason}") from exc
 
 
 def run_backend(
@@ -177,27 +191,26 @@ def replay(
     sink = sink or NullSink()
     started, wall_start = provenance.utc_now(), time.perf_counter()
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"--out {out_dir}: exists and is not a directory")
     try:
         log = read_log(log_path, load_images=sink.wants_images)
         _check_inputs(log, method)
-        sink.start(log, method)
-        start = time.perf_counter()
-        backend = run_backend(log, method, config, sink, progress)
-        result = backend.result()
-        runtime_s = time.perf_counter() - start
-        metrics = compute_metrics(log, result, method, runtime_s)
-        files = render_outputs(log, result, metrics)
-        files[provenance.RUN_RECORD] = provenance.run_json(
-            {"method": method, "backend": config},
-            [log_path],
-            started,
-            time.perf_counter() - wall_start,
-            command,
-        )
-        outputs.write_outputs(out_dir, files, stale=[outputs.METRICS])
-        sink.finish(result, metrics)
+        with outputs.OutputFolder(out_dir) as folder, solver_failures():
+            sink.start(log, method)
+            start = time.perf_counter()
+            backend = run_backend(log, method, config, sink, progress)
+            result = backend.result()
+            runtime_s = time.perf_counter() - start
+            metrics = compute_metrics(log, result, method, runtime_s)
+            files = render_outputs(log, result, metrics)
+            files[provenance.RUN_RECORD] = provenance.run_json(
+                {"method": method, "backend": config},
+                [log_path],
+                started,
+                time.perf_counter() - wall_start,
+                command,
+            )
+            folder.commit(files, stale=[outputs.METRICS])
+            sink.finish(result, metrics)
     finally:
         sink.close()
     return ReplayResult(

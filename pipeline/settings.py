@@ -1,12 +1,20 @@
 """TOML files into typed frozen dataclasses: the one loader every configuration uses.
 
 Defaults live in `configs/` (or `<prefix>/share/mmslam/configs/` for a non-editable install);
-a user's file needs only the keys it changes. Unknown keys, missing keys and wrong types are
-`InputError`s naming the key and the file. Supported field types: `int`, `float` (finite),
-`bool`, `str`, `Path` (resolved against the directory of the file that sets it), fixed or
-variable tuples of those, nested dataclasses, tuples of dataclasses (arrays of tables), and
-`dict` (a free-form table, such as a name mapping, that its owner checks; a user's file
-replaces it whole).
+a user's file needs only the keys it changes. Unknown keys, missing keys, wrong types and
+values outside a key's valid range are `InputError`s naming the key and the file. Supported
+field types: `int`, `float` (finite), `bool`, `str`, `Path` (resolved against the directory
+of the file that sets it), fixed or variable tuples of those, nested dataclasses, tuples of
+dataclasses (arrays of tables), and `dict` (a free-form table, such as a name mapping, that its
+owner checks; a user's file replaces it whole).
+
+A number or word field declares its valid range beside its type, and the config file says the
+same in a `# valid: ...` comment on the key's line (tests/test_settings.py holds them equal):
+
+    relinearize_skip: int = setting(at_least(1))          # relinearize_skip = 1  # valid: >= 1
+    selection: str = setting(one_of("a", "b"))            # selection = "a"  # valid: one of a, b
+
+A tuple's range holds for each of its items. Checks between keys stay with the config's owner.
 """
 
 from __future__ import annotations
@@ -17,6 +25,7 @@ import math
 import sys
 import tomllib
 import typing
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -26,6 +35,75 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 INSTALLED_CONFIG_DIR = Path(sys.prefix) / "share" / "mmslam" / "configs"
 
 T = TypeVar("T")
+VALID = "valid"  # the dataclass field metadata key of a range
+
+
+@dataclass(frozen=True)
+class Valid:
+    """A setting's valid range: numbers in an interval (ends open or closed, either may be
+    missing), or one of some words; no bound at all means anything of the field's type."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] = ()
+
+    def holds(self, value: Any) -> bool:
+        if self.choices:
+            return value in self.choices
+        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
+            return False
+        return self.high is None or (value < self.high if self.high_open else value <= self.high)
+
+    def describe(self) -> str:
+        if self.choices:
+            return "one of " + ", ".join(self.choices)
+        low, high = self.low, self.high
+        if low is not None and high is not None:
+            opening = "(" if self.low_open else "["
+            closing = ")" if self.high_open else "]"
+            return f"in {opening}{low:g}, {high:g}{closing}"
+        if low is not None:
+            return f"{'>' if self.low_open else '>='} {low:g}"
+        if high is not None:
+            return f"{'<' if self.high_open else '<='} {high:g}"
+        return "any"
+
+
+ANY = Valid()
+POSITIVE = Valid(low=0.0, low_open=True)
+FRACTION = Valid(low=0.0, high=1.0, low_open=True)  # (0, 1]
+PROBABILITY = Valid(low=0.0, high=1.0, low_open=True, high_open=True)  # (0, 1)
+
+
+def at_least(low: float) -> Valid:
+    return Valid(low=low)
+
+
+def between(low: float, high: float, *, low_open: bool = False, high_open: bool = False) -> Valid:
+    return Valid(low=low, high=high, low_open=low_open, high_open=high_open)
+
+
+def one_of(*choices: str) -> Valid:
+    return Valid(choices=choices)
+
+
+def setting(valid: Valid) -> Any:
+    """A dataclass field with a valid range (and no default: defaults live in `configs/`)."""
+    return dataclasses.field(metadata={VALID: valid})
+
+
+def valid_range(cls: type, name: str) -> Valid | None:
+    """The range declared for field `name` of dataclass `cls`, if any."""
+    field = next(f for f in dataclasses.fields(cls) if f.name == name)
+    return field.metadata.get(VALID)
+
+
+def check_range(value: Any, valid: Valid, path: Path | str, key: str) -> None:
+    """Raise `InputError` naming the file and the key unless `value` is within `valid`."""
+    if not valid.holds(value):
+        raise InputError(f"config {path}: '{key}' must be {valid.describe()}, got {value!r}")
 
 
 def config_path(relative: str) -> Path:
@@ -47,6 +125,8 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise InputError(f"config {path}: cannot be read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"config {path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"config {path}: not UTF-8 text") from None
 
 
 def require(condition: bool, path: Path | str, message: str) -> None:
@@ -143,7 +223,14 @@ def build(cls: type[T], table: dict[str, Any], path: Path, prefix: str = "") -> 
     for name, kind in types.items():
         if name not in table:
             raise InputError(f"config {path}: missing key '{prefix}{name}'")
-        kwargs[name] = _value(table[name], kind, path, f"{prefix}{name}")
+        value = _value(table[name], kind, path, f"{prefix}{name}")
+        valid = valid_range(cls, name)
+        if valid is not None:
+            items = value if isinstance(value, tuple) else (value,)
+            for i, item in enumerate(items):
+                key = f"{prefix}{name}" + (f"[{i}]" if isinstance(value, tuple) else "")
+                check_range(item, valid, path, key)
+        kwargs[name] = value
     return cls(**kwargs)
 
 

@@ -121,7 +121,11 @@ def test_known_without_truth_ids_exits_2(tmp_path, capsys, earlier_run):
 @pytest.mark.parametrize(
     "content,needle",
     [
-        ("[association]\nchi2_confidence = 1.5\n", "chi2_confidence must be in (0, 1)"),
+        (
+            "[association]\nchi2_confidence = 1.5\n",
+            "'association.chi2_confidence' must be in (0, 1)",
+        ),
+        ("[isam2]\nrelinearize_skip = 0\n", "'isam2.relinearize_skip' must be >= 1, got 0"),
         ("[association]\nnull_wieght = 0.2\n", "unknown key 'association.null_wieght'"),
         ("[isam2]\nrelinearize_skip = 'often'\n", "'isam2.relinearize_skip' must be int"),
         ("[association\n", "not valid TOML"),

@@ -197,7 +197,7 @@ def test_a_simulated_log_carries_foxglove_topics_that_match_it(kitti_log):
 def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
     scene, _, _ = kidnap_scene(alias_seen_before=False)
     plain = write_scene(tmp_path / "plain.mcap", scene)
-    from pipeline.log import mcap_io
+    from pipeline.log import writer as log_writer
 
     with_fox = read_foxglove(plain)
     assert with_fox, "LogWriter writes Foxglove topics by default"
@@ -210,16 +210,16 @@ def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
                 if c.topic in CONTRACT_TOPICS
             ]
 
-    original = mcap_io.LogWriter.__init__
+    original = log_writer.LogWriter.__init__
 
     def without_foxglove(self, path, metadata, foxglove=True):
         original(self, path, metadata, foxglove=False)
 
-    mcap_io.LogWriter.__init__ = without_foxglove
+    log_writer.LogWriter.__init__ = without_foxglove
     try:
         bare = write_scene(tmp_path / "bare.mcap", scene)
     finally:
-        mcap_io.LogWriter.__init__ = original
+        log_writer.LogWriter.__init__ = original
     assert read_foxglove(bare) == {}
     assert contract_messages(plain) == contract_messages(bare)
 

@@ -22,10 +22,12 @@ from pipeline.log import (
     read_log,
 )
 from pipeline.log import schemas as topics
-from pipeline.log.mcap_io import metadata_record
+from pipeline.log.limits import MAX_RANGE_M
+from pipeline.log.metadata import metadata_record
 
 I3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
 I6 = tuple(float(i == j) for i in range(6) for j in range(6))
+I4 = tuple(float(i == j) for i in range(4) for j in range(4))
 METADATA = LogMetadata(2, ((0.9, 0.1), (0.2, 0.8)), ("car", "van"), "tests")
 
 
@@ -92,7 +94,7 @@ def test_every_message_type_round_trips(tmp_path):
     rp = RelativePose((1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0), I6)
     det = Detection(1, 0.95, 0.1, -0.2, 7.5, I3, "apriltag", (1.0, 2.0, 30.0, 40.0), rp, 17)
     messages = [
-        StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I6[:16]),
+        StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I4),
         GroundTruthLandmarks(0, (GroundTruthLandmark(17, 1, (1.0, 2.0, 3.0)),)),
         GroundTruthPose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)),
         Detections(0, 0, (det,)),
@@ -287,9 +289,9 @@ def test_not_an_mcap_file_is_refused(tmp_path):
 def test_reader_accepts_what_the_writer_writes_for_every_float(tmp_path):
     tiny = 1e-300
     with LogWriter(tmp_path / "f.mcap", METADATA) as w:
-        w.write(Detections(0, 0, (Detection(0, 0.0, -math.pi, tiny, 1e6, I3, "bbox"),)))
+        w.write(Detections(0, 0, (Detection(0, 0.0, -math.pi, tiny, MAX_RANGE_M, I3, "bbox"),)))
     (det,) = read_log(tmp_path / "f.mcap").detections[0].detections
-    assert det.bearing == -math.pi and det.elevation == tiny and det.range == 1e6
+    assert det.bearing == -math.pi and det.elevation == tiny and det.range == MAX_RANGE_M
 
 
 def test_written_messages_follow_the_json_schemas_in_the_file(tmp_path):
@@ -300,7 +302,7 @@ def test_written_messages_follow_the_json_schemas_in_the_file(tmp_path):
     rp = RelativePose((1.0, 2.0, 3.0), (0.0, 0.0, 0.0, 1.0), I6)
     det = Detection(1, 0.95, 0.1, -0.2, 7.5, I3, "apriltag", (1.0, 2.0, 30.0, 40.0), rp, 17)
     with LogWriter(tmp_path / "s.mcap", METADATA) as w:
-        w.write(StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I6[:16]))
+        w.write(StereoCalibration(0, 1226, 370, 707.0, 707.0, 601.0, 183.0, 0.54, I4))
         w.write(GroundTruthLandmarks(0, (GroundTruthLandmark(17, 1, (1.0, 2.0, 3.0)),)))
         w.write(Detections(0, 0, (det,)))
         w.write(Odometry(100, 0, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), I6))

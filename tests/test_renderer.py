@@ -271,7 +271,7 @@ def test_presets_load_and_bad_presets_are_refused(tmp_path):
     for bad in (
         text.replace("width = 613", "width = 613\ncolour = true"),
         text.replace("supersample = 2", "supersample = 2.5"),
-        text.replace("count = 22\n", ""),
+        text.replace("count = 22  # valid: in [0, 587]\n", ""),
         text.replace('style = "street"', 'style = "forest"'),
     ):
         path = tmp_path / "bad.toml"

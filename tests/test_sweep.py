@@ -366,8 +366,8 @@ BAD_CONFIGS = {
     "unknown method": ("scenario = 'indoor-tags'\nseeds = 1\nmethods = ['icp']", "methods[0]"),
     "no seeds": ("scenario = 'indoor-tags'\nseeds = 0\nmethods = ['ml']", "'seeds'"),
     "negative seed": ("scenario = 'indoor-tags'\nseeds = [1, -2]\nmethods = ['ml']", "seeds[1]"),
-    "percentage": ("{base}\nmisclassification = 10", "within 0..1"),
-    "negative noise": ("{base}\nodom_noise_scale = -1", "'odom_noise_scale' must be >= 0"),
+    "percentage": ("{base}\nmisclassification = 10", "'misclassification' must be in [0, 1]"),
+    "negative noise": ("{base}\nodom_noise_scale = -1", "'odom_noise_scale' must be in [0, 100]"),
     "bad factor": (
         "{base}\n[[axes]]\nname = 'x'\nfactor = 'speed'\nvalues = [1]",
         "axes[0].factor",

@@ -25,8 +25,11 @@ _MODULES = {
     planar_park.NAME: planar_park,
 }
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
+# Times the paper's added odometry noise, at most: the paper sweeps 0..10; far beyond, the
+# drawn steps overflow.
+MAX_NOISE_SCALE = 100.0
 
-__all__ = ["SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
+__all__ = ["MAX_NOISE_SCALE", "SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
 
 
 def _number(name: str, value: float) -> float:
@@ -68,8 +71,8 @@ def simulate(
     if odom_noise_scale is None:
         odom_noise_scale = config.odometry.default_noise_scale
     scale = _number("--odom-noise-scale", odom_noise_scale)
-    if scale < 0:
-        raise InputError(f"--odom-noise-scale must be >= 0, got {scale:g}")
+    if not 0 <= scale <= MAX_NOISE_SCALE:
+        raise InputError(f"--odom-noise-scale must be within 0..{MAX_NOISE_SCALE:g}, got {scale:g}")
     classes = config.num_classes if num_classes is None else num_classes
     if isinstance(classes, bool) or not isinstance(classes, int) or classes < 1:
         raise InputError(f"--num-classes must be an integer >= 1, got {classes!r}")

@@ -7,8 +7,8 @@ and a box plot per axis (OUT/fig_<axis>.png). Configs live in `configs/sweeps/`.
 One job per module: `config` (the TOML file), `grid` (cells, runs, folders), `work` (one run on
 a worker), `executors` (where runs execute), `results` (results.csv), `stats` (pooling over
 runs), `tables` (Markdown), `plots` (PNG), `reporting` (tables and plots from results.csv),
-`report` (its command: `python -m data_tools.sweep.report DIR`), `files` (atomic writes),
-`sweep` (the whole command).
+`report` (its command: `python -m data_tools.sweep.report DIR`), `sweep` (the whole
+command). Every file is written all-or-nothing (`pipeline/outputs.py`).
 """
 
 from __future__ import annotations

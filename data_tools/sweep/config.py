@@ -8,17 +8,17 @@ relative to the file. Every problem is an `InputError` naming the file and the k
     scenario = "indoor-tags"
     scenario_config = "small.toml"    # optional, over configs/scenarios/<scenario>.toml
     backend_config = "backend.toml"   # optional, over configs/default.toml
-    num_classes = 2                   # optional (default: the scenario's)
+    num_classes = 2                   # optional (default: the scenario's); >= 1
     true_covariance = false           # optional
-    seeds = 10                        # seeds 0..9, or a list: [0, 4, 7]
+    seeds = 10                        # seeds 0..9 (>= 1), or a list of seeds >= 0: [0, 4, 7]
     methods = ["known", "ml", "gpda", "mm", "mm-nh"]
-    odom_noise_scale = 1.0            # the base cell (default: the scenario's)
-    misclassification = 0.1           # the base cell (default: 0)
+    odom_noise_scale = 1.0            # the base cell (default: the scenario's); in [0, 100]
+    misclassification = 0.1           # the base cell (default: 0); in [0, 1]
 
     [[axes]]                          # optional, any number; each makes a figure
     name = "noise"
     factor = "odom_noise_scale"       # or "misclassification"
-    values = [0, 2, 4, 6, 8, 10]      # the other factor stays at the base cell's
+    values = [0, 2, 4, 6, 8, 10]      # the other factor stays at the base cell's; its range
 """
 
 from __future__ import annotations
@@ -32,11 +32,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from data_tools.scenarios import SCENARIOS
+from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS
 from pipeline import settings
 from pipeline.errors import InputError
 
 FACTORS = ("odom_noise_scale", "misclassification")
+# Valid ranges (`pipeline/settings.py`); the sweep files' comments say the same.
+FACTOR_RANGES = {
+    "odom_noise_scale": settings.between(0.0, MAX_NOISE_SCALE),
+    "misclassification": settings.between(0.0, 1.0),  # a rate, not a percentage
+}
+SEED = settings.at_least(0)
+SEED_COUNT = settings.at_least(1)
+NUM_CLASSES = settings.at_least(1)
 FACTOR_LABELS = {
     "odom_noise_scale": "odometry noise scale",
     "misclassification": "misclassification rate",
@@ -98,18 +106,16 @@ def _number(value: Any, path: Path, key: str) -> float:
     return float(value)
 
 
-def _integer(value: Any, path: Path, key: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise _fail(path, f"'{key}' must be an integer >= {minimum}, got {value!r}")
+def _integer(value: Any, path: Path, key: str, valid: settings.Valid) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise _fail(path, f"'{key}' must be an integer, got {value!r}")
+    settings.check_range(value, valid, path, key)
     return value
 
 
 def _factor_value(factor: str, value: Any, path: Path, key: str) -> float:
     number = _number(value, path, key)
-    if factor == "odom_noise_scale" and number < 0:
-        raise _fail(path, f"'{key}' must be >= 0, got {number:g}")
-    if factor == "misclassification" and not 0.0 <= number <= 1.0:
-        raise _fail(path, f"'{key}' must be within 0..1 (a rate, not a percentage), got {number:g}")
+    settings.check_range(number, FACTOR_RANGES[factor], path, key)
     return number
 
 
@@ -117,11 +123,11 @@ def _seeds(value: Any, path: Path) -> tuple[int, ...]:
     if isinstance(value, list):
         if not value:
             raise _fail(path, "'seeds' must not be empty")
-        seeds = tuple(_integer(v, path, f"seeds[{i}]", 0) for i, v in enumerate(value))
+        seeds = tuple(_integer(v, path, f"seeds[{i}]", SEED) for i, v in enumerate(value))
         if len(set(seeds)) != len(seeds):
             raise _fail(path, "'seeds' lists a seed twice")
         return seeds
-    return tuple(range(_integer(value, path, "seeds", 1)))
+    return tuple(range(_integer(value, path, "seeds", SEED_COUNT)))
 
 
 def _methods(value: Any, path: Path) -> tuple[str, ...]:
@@ -215,7 +221,7 @@ def load_sweep_config(path: str | Path) -> SweepConfig:
     scenario_config = _scenario_config(scenario, scenario_path)
     backend_config = load_config(backend_path)
     num_classes = _integer(
-        table.get("num_classes", scenario_config.num_classes), path, "num_classes", 1
+        table.get("num_classes", scenario_config.num_classes), path, "num_classes", NUM_CLASSES
     )
     true_covariance = table.get("true_covariance", False)
     if not isinstance(true_covariance, bool):

@@ -11,6 +11,7 @@ from data_tools.sweep.grid import Cell
 from data_tools.sweep.results import ResultRow
 from data_tools.sweep.stats import series
 from data_tools.sweep.tables import factor_text, method_name
+from pipeline.outputs import AtomicFile
 
 # One colour per method, the same in every figure.
 COLOURS = {
@@ -68,8 +69,6 @@ def box_figure(
     handles = [Patch(color=COLOURS.get(m, "#9467bd"), alpha=0.75) for m in shown]
     figure.legend(handles, [method_name(m) for m in shown], loc="outside right center")
     figure.suptitle(title, fontsize=10)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    partial = out.with_name(f".{out.name}.part")
-    figure.savefig(partial, format="png")
-    partial.replace(out)
+    with AtomicFile(out) as png:
+        figure.savefig(png.file, format="png")
     return out

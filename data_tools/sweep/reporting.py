@@ -7,12 +7,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from data_tools.sweep.config import SweepConfig, code_versions_of, from_json
-from data_tools.sweep.files import write_text
 from data_tools.sweep.grid import axis_cells
 from data_tools.sweep.plots import box_figure
 from data_tools.sweep.results import RESULTS_NAME, ResultRow, read_results
 from data_tools.sweep.tables import held_factor, render_tables
 from pipeline.errors import InputError
+from pipeline.outputs import write_text
 
 DESCRIPTION_NAME = "sweep.json"
 TABLES_NAME = "tables.md"

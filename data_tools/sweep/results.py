@@ -12,9 +12,9 @@ from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 from typing import Any
 
-from data_tools.sweep.files import write_text
 from data_tools.sweep.grid import RunKey
 from pipeline.errors import InputError
+from pipeline.outputs import write_text
 
 RESULTS_NAME = "results.csv"
 

@@ -9,15 +9,19 @@ folder's error.txt and left unfinished, so the next sweep into the same folder t
 from __future__ import annotations
 
 import logging
+import signal
 import subprocess
+import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json
 from data_tools.sweep.executors import default_workers, execute
-from data_tools.sweep.files import write_text
 from data_tools.sweep.grid import RUNS_DIR, RunKey, log_path, run_dir, runs
 from data_tools.sweep.reporting import DESCRIPTION_NAME, read_description, write_report
 from data_tools.sweep.results import RESULTS_NAME, row_from_metrics, write_results
@@ -29,7 +33,7 @@ from data_tools.sweep.work import (
 )
 from pipeline import provenance
 from pipeline.errors import InputError
-from pipeline.outputs import METRICS, metrics_json, write_outputs
+from pipeline.outputs import METRICS, metrics_json, write_outputs, write_text
 from pipeline.progress import Progress
 
 logger = logging.getLogger(__name__)
@@ -155,6 +159,24 @@ class _Progress:
         self.shown.close()
 
 
+@contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a scheduler or `kill` stopping the sweep) does what Ctrl-C does: the runs in
+    progress end, the finished ones are kept, and the sweep says it was interrupted."""
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():  # signals reach main only
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def finished_runs(out: Path, keys: list[RunKey]) -> dict[RunKey, dict[str, Any]]:
     """The metrics of the runs among `keys` already finished in `out`."""
     found = {key: finished_metrics(run_dir(out, key), key.method) for key in keys}
@@ -219,20 +241,21 @@ def run_sweep(
     if tasks:
         code_versions = note_code_version(out, config, code_versions)
     logger.info("sweep %s: %d runs, %d finished before", config.name, len(keys), kept)
-    failed = run_pending(
-        out,
-        tasks,
-        metrics,
-        workers=workers or default_workers(),
-        dask_address=dask_address,
-        progress=progress,
-    )
+    with terminate_as_interrupt():
+        failed = run_pending(
+            out,
+            tasks,
+            metrics,
+            workers=workers or default_workers(),
+            dask_address=dask_address,
+            progress=progress,
+        )
 
     rows = [row_from_metrics(key, metrics[key]) for key in keys if key in metrics]
     write_results(out / RESULTS_NAME, rows)
     files = [out / RESULTS_NAME, *write_report(out, config, rows, code_versions)]
     record = provenance.run_json(config, [config_path], started, time.perf_counter() - start)
-    write_outputs(out, {provenance.RUN_RECORD: record})
+    write_text(out / provenance.RUN_RECORD, record)
     files.append(out / provenance.RUN_RECORD)
     return SweepSummary(
         name=config.name,

@@ -2,14 +2,18 @@
 
 `run_task` is a top-level function of picklable arguments, so that a process pool and a Dask
 cluster can both call it. The log of a (cell, seed) is made once, under a file lock, and shared
-by that cell and seed's methods. A run is finished when its `metrics.json` is complete on disk;
-the replay writes it atomically, so a half-done run never looks finished.
+by that cell and seed's methods; its SHA-256 is recorded beside it, and a log that no longer
+matches (cut short, overwritten, corrupted on disk) is made again before it is used. A run is
+finished when its `metrics.json` is complete on disk; the replay swaps in its output folder
+whole, so a half-done run never looks finished.
 """
 
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import json
+import logging
 import time
 import traceback
 from dataclasses import dataclass
@@ -18,7 +22,9 @@ from typing import Any
 
 from data_tools.sweep.grid import RunKey
 from pipeline.errors import first_line
-from pipeline.outputs import METRICS
+from pipeline.outputs import METRICS, write_text
+
+logger = logging.getLogger(__name__)
 
 STATISTICS = ("max", "mean", "median", "rmse")
 ASSOCIATION = ("correct", "wrong", "null")
@@ -72,10 +78,28 @@ def finished_metrics(run_dir: Path, method: str) -> dict[str, Any] | None:
     return metrics if complete_metrics(metrics, method) else None
 
 
+def digest_path(log_path: Path) -> Path:
+    """Where the SHA-256 of a cached log is kept (sha256sum's format: `sha256sum -c` reads it)."""
+    return log_path.with_name(log_path.name + ".sha256")
+
+
+def file_digest(path: Path) -> str:
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def cached_log_is_intact(log_path: Path) -> bool:
+    """Whether the log is there with the digest recorded when it was written."""
+    try:
+        recorded = digest_path(log_path).read_text(encoding="utf-8").split()[0]
+        return file_digest(log_path) == recorded
+    except (OSError, IndexError):
+        return False
+
+
 def ensure_log(task: RunTask) -> None:
-    """Make the log of the task's cell and seed unless it exists (once, whoever asks first)."""
-    if task.log_path.exists():
-        return
+    """Make the log of the task's cell and seed unless it is there intact (checked against the
+    digest recorded when it was made), once, whoever asks first."""
     from data_tools.scenarios import simulate
 
     task.log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,8 +107,10 @@ def ensure_log(task: RunTask) -> None:
     with open(lock_path, "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         try:
-            if task.log_path.exists():  # made while we waited
+            if cached_log_is_intact(task.log_path):  # made earlier, or while we waited
                 return
+            if task.log_path.exists():
+                logger.warning("%s: not as it was written; making it again", task.log_path)
             simulate(
                 task.scenario,
                 task.log_path,
@@ -96,6 +122,8 @@ def ensure_log(task: RunTask) -> None:
                 config_path=task.scenario_config,
                 foxglove=False,  # only replayed
             )
+            digest = file_digest(task.log_path)
+            write_text(digest_path(task.log_path), f"{digest}  {task.log_path.name}\n")
         finally:
             fcntl.flock(lock, fcntl.LOCK_UN)
 

@@ -66,6 +66,8 @@ def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str
         raise InputError(f"calibration {path}: cannot read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"calibration {path}: not valid TOML ({exc})") from None
+    except UnicodeDecodeError:
+        raise InputError(f"calibration {path}: not UTF-8 text") from None
     camera = document.get("camera")
     if not isinstance(camera, dict):
         raise InputError(f"calibration {path}: needs a [camera] table")

@@ -18,7 +18,6 @@ temporary name renamed into place.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -30,7 +29,7 @@ from pipeline.backend.hypotheses import NULL
 from pipeline.errors import InputError
 from pipeline.foxglove import messages as fm
 from pipeline.foxglove.channels import FoxgloveChannels
-from pipeline.log.mcap_io import atomic_output
+from pipeline.outputs import AtomicFile
 
 if TYPE_CHECKING:
     from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
@@ -107,19 +106,14 @@ class FoxgloveSink:
     def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
         messages = self._messages(result, metrics)
         messages.sort(key=lambda m: m[0])  # stable: in time order, as the log's are
-        fd, tmp = atomic_output(self.path)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                writer = Writer(f, compression=CompressionType.ZSTD)
-                writer.start(profile="", library="mmslam")
-                writer.add_metadata("mmslam.estimate", {"method": self.method})
-                channels = FoxgloveChannels(writer)
-                for stamp, topic, message in messages:
-                    channels.write(topic, stamp, message)
-                writer.finish()
-            os.replace(tmp, self.path)
-        finally:
-            tmp.unlink(missing_ok=True)
+        with AtomicFile(self.path) as out:
+            writer = Writer(out.file, compression=CompressionType.ZSTD)
+            writer.start(profile="", library="mmslam")
+            writer.add_metadata("mmslam.estimate", {"method": self.method})
+            channels = FoxgloveChannels(writer)
+            for stamp, topic, message in messages:
+                channels.write(topic, stamp, message)
+            writer.finish()
 
     def _messages(
         self, result: BackendResult, metrics: dict[str, Any] | None

@@ -1,6 +1,10 @@
-"""The contract-v1 detection log: messages, and the one module that reads and writes them."""
+"""The contract-v1 detection log: its messages, how they are read and checked, and written.
 
-from pipeline.log.mcap_io import LogWriter, RawLog, decode_log, read_log, scan_log
+`limits` (the bounds), `codec` (one message <-> JSON), `metadata` (the `mmslam` record),
+`mcap_stream` (the MCAP container, streamed), `validate` (the checks across messages),
+`reader` (a whole log in memory), `writer` (a log on disk, all-or-nothing).
+"""
+
 from pipeline.log.messages import (
     CompressedImage,
     Detection,
@@ -14,6 +18,8 @@ from pipeline.log.messages import (
     RelativePose,
     StereoCalibration,
 )
+from pipeline.log.reader import read_log
+from pipeline.log.writer import LogWriter
 
 __all__ = [
     "CompressedImage",
@@ -26,10 +32,7 @@ __all__ = [
     "LogMetadata",
     "LogWriter",
     "Odometry",
-    "RawLog",
     "RelativePose",
     "StereoCalibration",
-    "decode_log",
     "read_log",
-    "scan_log",
 ]

@@ -12,6 +12,9 @@ CALIBRATION = "/calibration"
 LEFT_IMAGE = "/camera/left/compressed"
 RIGHT_IMAGE = "/camera/right/compressed"
 IMAGE_TOPICS = (LEFT_IMAGE, RIGHT_IMAGE)
+# Foxglove's well-known messages (protobuf) that writers add beside the contract's topics
+# (pipeline/foxglove/log_topics.py): the log as Foxglove shows it; readers skip them.
+FOXGLOVE_PREFIX = "/foxglove/"
 
 _NUM = {"type": "number"}
 _INT = {"type": "integer"}

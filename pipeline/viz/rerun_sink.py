@@ -36,8 +36,8 @@ from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.errors import InputError
 from pipeline.geometry import point_from_bearing_elevation_range
-from pipeline.log.mcap_io import atomic_output
 from pipeline.log.schemas import LEFT_IMAGE
+from pipeline.outputs import atomic_output
 from pipeline.viz import draw, events
 from pipeline.viz import entities as e
 from pipeline.viz.blueprint import (

@@ -1,0 +1,145 @@
+"""Writing a contract-v1 log: MCAP with JSON messages, all-or-nothing.
+
+Every message goes through the reader's own checks (`validate.py`) before it is written, so a
+log this writer completes is one the reader accepts; a message that fails them is an
+`InputError` and nothing is written. The file appears only once complete (`AtomicFile`), with
+MCAP's CRCs over its chunks, its data section and its summary. Unless asked not to, it also
+writes Foxglove's well-known messages under `/foxglove/` (`pipeline/foxglove/log_topics.py`),
+from the messages that passed the checks, so that the log shows in Foxglove; readers skip them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from mcap.writer import CompressionType, Writer
+
+from pipeline.errors import InputError, LogError
+from pipeline.log import codec, schemas
+from pipeline.log.mcap_stream import ChannelInfo
+from pipeline.log.messages import (
+    METADATA_NAME,
+    CompressedImage,
+    Detections,
+    GroundTruthLandmarks,
+    GroundTruthPose,
+    LogMetadata,
+    Odometry,
+    StereoCalibration,
+)
+from pipeline.log.metadata import metadata_record, parse_metadata
+from pipeline.log.validate import LogValidator
+from pipeline.outputs import AtomicFile
+
+_ENCODERS = {
+    Odometry: (schemas.ODOMETRY, codec.encode_odometry),
+    Detections: (schemas.DETECTIONS, codec.encode_detections),
+    GroundTruthPose: (schemas.GT_POSE, codec.encode_ground_truth_pose),
+    GroundTruthLandmarks: (schemas.GT_LANDMARKS, codec.encode_ground_truth_landmarks),
+    StereoCalibration: (schemas.CALIBRATION, codec.encode_calibration),
+    CompressedImage: (None, codec.encode_compressed_image),
+}
+
+
+class LogWriter:
+    """Writes a log; use as a context manager. Messages go in the order they are written.
+
+    With `foxglove` (the default), Foxglove's well-known messages are written beside the
+    contract's topics."""
+
+    def __init__(self, path: str | os.PathLike, metadata: LogMetadata, foxglove: bool = True):
+        self.path = Path(path)
+        self.metadata = metadata
+        record = metadata_record(metadata)
+        try:
+            parse_metadata(record)
+        except ValueError as exc:
+            raise self._refusal(f"metadata '{METADATA_NAME}': {exc}") from None
+        self._validator = LogValidator(str(self.path), metadata)
+        self._out = AtomicFile(self.path)
+        self._writer = Writer(
+            self._out.file, compression=CompressionType.ZSTD, enable_data_crcs=True
+        )
+        self._writer.start(profile="", library="mmslam")
+        self._channels: dict[str, ChannelInfo] = {}
+        self._counts: Counter[str] = Counter()
+        self._writer.add_metadata(METADATA_NAME, record)
+        self._foxglove = None
+        if foxglove:
+            from pipeline.foxglove.channels import FoxgloveChannels
+            from pipeline.foxglove.log_topics import LogMirror
+
+            self._foxglove = LogMirror(FoxgloveChannels(self._writer), metadata)
+
+    def _refusal(self, detail: str) -> InputError:
+        return InputError(f"not writing {self.path}: {detail}")
+
+    def _channel(self, topic: str) -> ChannelInfo:
+        if topic not in self._channels:
+            name, _ = schemas.SCHEMAS[topic]
+            schema_id = self._writer.register_schema(
+                name=name, encoding="jsonschema", data=schemas.schema_bytes(topic)
+            )
+            channel_id = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id
+            )
+            self._channels[topic] = ChannelInfo(channel_id, topic, name, "jsonschema", "json")
+        return self._channels[topic]
+
+    def write(self, msg: Any, topic: str | None = None) -> None:
+        """Write one message; `topic` is needed only for images (left or right)."""
+        default_topic, encode = _ENCODERS[type(msg)]
+        topic = topic or default_topic
+        if topic is None:
+            raise ValueError("images need a topic")
+        index = self._counts[topic]
+        self._counts[topic] += 1
+        try:
+            data = json.dumps(encode(msg), separators=(",", ":"), allow_nan=False).encode()
+        except ValueError:
+            raise self._refusal(f"{topic} message {index}: holds a non-finite number") from None
+        channel = self._channel(topic)
+        try:
+            self._validator.message(channel, index, msg.stamp_ns, data)
+        except LogError as exc:
+            raise self._refusal(exc.detail) from None
+        self._writer.add_message(
+            channel_id=channel.id,
+            log_time=msg.stamp_ns,
+            publish_time=msg.stamp_ns,
+            data=data,
+            sequence=0,
+        )
+        if self._foxglove is not None:
+            self._foxglove.write(msg)
+
+    def close(self) -> None:
+        try:
+            self._validator.finish(self._channels.values())
+        except LogError as exc:
+            self.abort()
+            raise self._refusal(exc.detail) from None
+        try:
+            if self._foxglove is not None:
+                self._foxglove.finish()
+            self._writer.finish()
+        except BaseException:
+            self.abort()
+            raise
+        self._out.commit()
+
+    def abort(self) -> None:
+        self._out.discard()
+
+    def __enter__(self) -> LogWriter:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()

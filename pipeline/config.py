@@ -42,6 +42,7 @@ class AssociationConfig:
     min_weight: float = setting(between(0.0, 1.0, high_open=True))
     search_sigmas: float = setting(at_least(0.0))
     search_margin_m: float = setting(at_least(0.0))
+    max_candidates: int = setting(at_least(1))
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,8 @@ class MergeConfig:
     local_log_odds: float = setting(at_least(0.0))
     ambiguity_log_odds: float = setting(at_least(0.0))
     max_search_nodes: int = setting(at_least(1))
+    max_partners: int = setting(at_least(1))
+    max_landmarks: int = setting(at_least(2))
 
 
 @dataclass(frozen=True)
@@ -90,6 +93,7 @@ class NoiseConfig:
     min_pairings: int = setting(at_least(1))
     min_scale: float = setting(FRACTION)
     max_scale: float = setting(at_least(1.0))
+    max_step: float = setting(at_least(1.0))
 
 
 @dataclass(frozen=True)

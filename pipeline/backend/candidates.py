@@ -284,7 +284,11 @@ class CandidateScorer:
         landmark_cov = np.stack([self._landmark_covariance_bound(j) for j in ids])
         landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
         bound = 2.0 * (pose_part + landmark_part) + m.covariance
-        plausible = np.flatnonzero(assoc.mahalanobis_squared_batch(residual, bound) <= gate)
+        bound_d2 = assoc.mahalanobis_squared_batch(residual, bound)
+        plausible = np.flatnonzero(bound_d2 <= gate)
+        # After a long drift every landmark for tens of metres passes: the nearest few only.
+        plausible = plausible[np.argsort(bound_d2[plausible], kind="stable")]
+        plausible = np.sort(plausible[: self.config.max_candidates])
         out = _Screened(
             np.array(ids)[plausible],
             semantic[plausible],

@@ -87,7 +87,10 @@ class MergeFinder:
         )
 
     def candidate_pairs(self, pose_index: int) -> list[tuple[int, int]]:
-        """(source, target) pairs that may be one landmark, by cheap tests only."""
+        """(source, target) pairs that may be one landmark, by cheap tests only: each source's
+        `max_partners` nearest (by the bound's distance), and sources, the most recently seen
+        first, only while the pairs hold at most `max_landmarks` landmarks (one joint
+        marginal over them all must stay cheap, also after a long drift)."""
         context, c = self.context, self.config
         lms = context.landmarks
         sources = self.sources(pose_index)
@@ -96,14 +99,15 @@ class MergeFinder:
         gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence))
         bound = {j: self._bound(j) for j in sources}
         seen_at: dict[int, set[int]] = {}
-        pairs: set[tuple[int, int]] = set()
+        partners: dict[int, list[tuple[float, int]]] = {}
         for a in sources:
             spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound[a])[-1]))
             position = lms.position(a)
+            found = []
             for b in lms.near(
                 LandmarkKind.POINT, position, c.search_sigmas * spread + self.margin_m
             ):
-                if b == a or (min(a, b), max(a, b)) in pairs:
+                if b == a:
                     continue
                 agreement = class_agreement(
                     lms.landmarks[a].class_probabilities, lms.landmarks[b].class_probabilities
@@ -113,15 +117,27 @@ class MergeFinder:
                 bound_b = bound.get(b)
                 if bound_b is None:
                     bound_b = bound[b] = self._bound(b)
-                diff = position - lms.position(b)
-                if assoc.mahalanobis_squared(diff, 2.0 * (bound[a] + bound_b)) > gate:
+                d2 = assoc.mahalanobis_squared(
+                    position - lms.position(b), 2.0 * (bound[a] + bound_b)
+                )
+                if d2 > gate:
                     continue
                 for j in (a, b):
                     if j not in seen_at:
                         seen_at[j] = context.observed_at(j)
                 if seen_at[a] & seen_at[b]:
                     continue  # seen together: two landmarks
-                pairs.add((min(a, b), max(a, b)))
+                found.append((d2, b))
+            partners[a] = sorted(found)[: c.max_partners]
+        pairs: set[tuple[int, int]] = set()
+        involved: set[int] = set()
+        for a in sorted(partners, key=lambda j: -context.last_seen.get(j, -1)):
+            mine = {(min(a, b), max(a, b)) for _, b in partners[a]} - pairs
+            more = {j for pair in mine for j in pair} - involved
+            if len(involved) + len(more) > c.max_landmarks:
+                break
+            pairs |= mine
+            involved |= more
         # The newer landmark (larger id) is the source, merged into the older one.
         return sorted((b, a) for a, b in pairs)
 

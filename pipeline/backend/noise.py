@@ -4,11 +4,16 @@ innovations of sure associations.
 A detection paired with a landmark has innovation nu = h(x, l) - z with covariance
 S = P + Gamma: P the pose's and the landmark's uncertainty seen through the measurement (it
 grows with the odometry's covariance), Gamma the detection's own. If the log understates its
-odometry by a factor a in variance and misstates each measurement component k by b_k, then
-E[nu nu^T] = a P + sum_k b_k Gamma_kk e_k e_k^T (+ Gamma's correlations). Whitened by S, every
-pairing gives six such equations (the upper triangle of a 3x3 matrix); pairings near a pose
-just seen weigh mostly on the b_k, pairings after a long drive on a. Least squares over the
-latest pairings estimates the scales; the back-end multiplies new factors' covariances by them.
+odometry by a factor a in variance and misstates measurement component k by b_k, then
+E[nu nu^T] = a P + sum_k b_k Gamma_kk e_k e_k^T (+ Gamma's correlations). The two are told
+apart by the pairings where one of them dominates:
+- a landmark seen again from a pose known about as well as it (tracking: P_kk small beside
+  Gamma_kk) tells b_k = (sum nu_k^2 - sum a P_kk) / sum Gamma_kk;
+- a landmark seen after a long drive (P much larger than Gamma) tells
+  a = sum (nu^T S^-1 nu - tr(S^-1 b Gamma)) / sum tr(S^-1 P), the normalised innovations'
+  excess over what the measurement noise explains.
+Moments, not a joint least-squares fit: where P and Gamma grow together the fit cannot tell a
+from b and swings between bounds, while each moment rests on the pairings that see it.
 
 Pure numpy; the pairings come from `methods/maxmixture.py`, the scales go to `slam.py`.
 """
@@ -19,6 +24,12 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+# A pairing tells b_k when P_kk is at most this share of Gamma_kk, and a when tr(P) is at
+# least this many times tr(Gamma).
+TRACKING_SHARE = 0.25
+DRIFT_RATIO = 4.0
+ROUNDS = 5
 
 
 @dataclass(frozen=True)
@@ -33,32 +44,53 @@ class NoiseScales:
         return np.diag(np.sqrt(self.measurement))
 
 
-def scale_equations(
-    residuals: np.ndarray, prior_parts: np.ndarray, gammas: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """The equations (A, y) of n pairings, y = A [a, b_1 .. b_d], whitened by S = P + Gamma,
-    from the upper triangle of W nu nu^T W^T = a W P W^T + sum_k b_k Gamma_kk W e_k e_k^T W^T
-    + W Gamma_off W^T (Gamma's correlations are taken as stated). Inputs (n, d), (n, d, d),
-    (n, d, d); outputs (n m, 1 + d) and (n m,), m = d (d + 1) / 2 equations a pairing."""
-    d = residuals.shape[1]
-    S = prior_parts + gammas
-    W = np.linalg.inv(np.linalg.cholesky(0.5 * (S + np.swapaxes(S, 1, 2))))
-    Wt = np.swapaxes(W, 1, 2)
-    rows, cols = np.triu_indices(d)
-    w = np.einsum("nij,nj->ni", W, residuals)
-    diagonal = np.einsum("nii->ni", gammas)
-    off = gammas - np.einsum("ni,ij->nij", diagonal, np.eye(d))
-    y = (np.einsum("ni,nj->nij", w, w) - W @ off @ Wt)[:, rows, cols]
-    columns = [(W @ prior_parts @ Wt)[:, rows, cols]]
-    for k in range(d):
-        column = W[:, :, k] * np.sqrt(diagonal[:, k])[:, None]
-        columns.append(np.einsum("ni,nj->nij", column, column)[:, rows, cols])
-    return np.stack(columns, axis=-1).reshape(-1, 1 + d), y.reshape(-1)
+def measurement_corrections(
+    residuals: np.ndarray,
+    prior_parts: np.ndarray,
+    gammas: np.ndarray,
+    min_pairings: int,
+    odometry: float = 1.0,
+) -> np.ndarray:
+    """Per component k, the factor by which Gamma_kk is off, from the tracking pairings of
+    (n, d) residuals, (n, d, d) prior parts (times `odometry`, their own correction) and
+    (n, d, d) Gammas; 1 where fewer than `min_pairings` see the component."""
+    P = np.einsum("nkk->nk", prior_parts)
+    G = np.einsum("nkk->nk", gammas)
+    tracking = P <= TRACKING_SHARE * G
+    out = np.ones(residuals.shape[1])
+    for k in range(residuals.shape[1]):
+        rows = tracking[:, k]
+        if rows.sum() >= min_pairings:
+            excess = np.sum(residuals[rows, k] ** 2) - odometry * np.sum(P[rows, k])
+            out[k] = max(excess, 0.0) / np.sum(G[rows, k])
+    return out
+
+
+def odometry_correction(
+    residuals: np.ndarray,
+    prior_parts: np.ndarray,
+    gammas: np.ndarray,
+    measurement: np.ndarray,
+    min_pairings: int,
+) -> float:
+    """The factor by which the prior parts (the odometry) are off, from the drift pairings,
+    with the measurement components already corrected by `measurement`; 1 without enough."""
+    drift = np.einsum("nkk->n", prior_parts) >= DRIFT_RATIO * np.einsum("nkk->n", gammas)
+    if drift.sum() < min_pairings:
+        return 1.0
+    nu, P = residuals[drift], prior_parts[drift]
+    D = np.sqrt(measurement)
+    G = gammas[drift] * D[None, :, None] * D[None, None, :]
+    S = P + G
+    nis = np.einsum("ni,ni->n", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+    explained = np.einsum("nii->n", np.linalg.solve(S, G))  # tr(S^-1 b Gamma)
+    carried = np.einsum("nii->n", np.linalg.solve(S, P))  # tr(S^-1 P)
+    return max(float(np.sum(nis - explained) / np.sum(carried)), 0.0)
 
 
 class ScaleEstimator:
-    """Least squares over the latest `window` pairings, with a weak pull towards the current
-    scales (`prior_weight` pairings' worth), bounded to `bounds`."""
+    """The latest `window` pairings' moments, once `min_pairings` see a scale; each update
+    moves a scale by at most `max_step` (a factor), within `bounds`."""
 
     def __init__(self, dim: int, window: int, min_pairings: int, bounds: tuple[float, float]):
         self.dim = dim
@@ -77,12 +109,12 @@ class ScaleEstimator:
         are too few pairings."""
         if len(self._pairings) < self.min_pairings:
             return None
-        A, y = scale_equations(*(np.stack(part) for part in zip(*self._pairings, strict=True)))
-        # A weak prior at 1 keeps a scale the pairings hardly see (no drift yet: no a) put.
-        prior = 1e-4 * len(self._pairings)
-        n = A.shape[1]
-        solution = np.linalg.solve(A.T @ A + prior * np.eye(n), A.T @ y + prior * np.ones(n))
-        return np.clip(solution, *self.bounds)
+        nu, P, G = (np.stack(part) for part in zip(*self._pairings, strict=True))
+        a = 1.0
+        for _ in range(ROUNDS):  # each moment needs the other; a few rounds settle them
+            b = measurement_corrections(nu, P, G, self.min_pairings, a)
+            a = odometry_correction(nu, P, G, b, self.min_pairings)
+        return np.clip(np.array([a, *b]), *self.bounds)
 
     def clear(self) -> None:
         """Forget the pairings: they were whitened with the scales now replaced."""
@@ -90,13 +122,14 @@ class ScaleEstimator:
 
 
 def updated(
-    scales: NoiseScales, corrections: np.ndarray, bounds: tuple[float, float]
+    scales: NoiseScales, corrections: np.ndarray, bounds: tuple[float, float], max_step: float
 ) -> NoiseScales:
-    """The scales times their corrections, kept within `bounds`."""
+    """The scales times their corrections (each by at most a factor `max_step` either way),
+    kept within `bounds`."""
     low, high = bounds
-    odometry = float(np.clip(scales.odometry * corrections[0], low, high))
+    steps = np.clip(corrections, 1.0 / max_step, max_step)
+    odometry = float(np.clip(scales.odometry * steps[0], low, high))
     measurement = tuple(
-        float(np.clip(s * c, low, high))
-        for s, c in zip(scales.measurement, corrections[1:], strict=True)
+        float(np.clip(s * c, low, high)) for s, c in zip(scales.measurement, steps[1:], strict=True)
     )
     return NoiseScales(odometry, measurement)

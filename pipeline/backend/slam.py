@@ -189,7 +189,7 @@ class Backend:
         corrections = self.context.innovations.corrections()
         if corrections is None:
             return
-        self.noise = updated(self.noise, corrections, (n.min_scale, n.max_scale))
+        self.noise = updated(self.noise, corrections, (n.min_scale, n.max_scale), n.max_step)
         self.context.innovations.clear()
         logger.debug("pose %d: noise scales %s", pose_index, self.noise)
 

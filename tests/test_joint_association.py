@@ -129,3 +129,13 @@ def test_of_two_estimates_of_one_landmark_the_established_one_takes_the_detectio
     # the second fits a little better, but the first holds thirty detections already
     assert score(p, [1]) > score(p, [0])
     assert associate_keyframe(p, 3.0, 1000).assignment == [0]
+
+
+def test_an_established_lookalike_hidden_by_the_pose_uncertainty_does_not_take_it():
+    # 2 m apart under a 5 m pose uncertainty: the joint test cannot tell them apart, but the
+    # measurement can: the better fit keeps the detection whatever the other's seniority
+    det = detection([[0.0, 0.02, 0.0], [0.0, 2.0, 0.0]], [0, 1])
+    det = DetectionOptions(**{**det.__dict__, "seniority": np.array([1.0, 40.0])})
+    p = problem([det], [1e-3] * 3 + [0.05, 5.0, 0.05], landmarks=2)
+    assert indistinguishable(p, 0, 0, 1)
+    assert associate_keyframe(p, 0.0, 1000).assignment == [0]

@@ -219,9 +219,21 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
 
 
+def alike_in_measurement(problem: KeyframeProblem, i: int, k: int, other: int) -> bool:
+    """Whether detection i's options k and `other` predict the same measurement within its own
+    noise: two estimates of one landmark, not a lookalike hidden by a large uncertainty."""
+    det = problem.detections[i]
+    difference = det.residuals[k] - det.residuals[other]
+    from scipy.special import chdtri
+
+    d2 = float(difference @ np.linalg.solve(det.covariance, difference))
+    return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
+
+
 def _to_the_established(problem: KeyframeProblem, assignment: list[int]) -> list[int]:
-    """Each pairing moved to the most established candidate its detection cannot tell apart
-    from the one chosen, where no other detection holds that landmark."""
+    """Each pairing moved to the most established candidate (by `seniority`; a candidate that
+    would close a loop has none) that predicts the same measurement as the one chosen, where
+    no other detection holds that landmark."""
     out = list(assignment)
     used = {problem.detections[i].slots[k] for i, k in enumerate(out) if k != NONE}
     for i, k in enumerate(out):
@@ -232,7 +244,7 @@ def _to_the_established(problem: KeyframeProblem, assignment: list[int]) -> list
             other = int(other)
             if det.seniority[other] <= det.seniority[k]:
                 break
-            if det.slots[other] not in used and indistinguishable(problem, i, k, other):
+            if det.slots[other] not in used and alike_in_measurement(problem, i, k, other):
                 used.discard(det.slots[k])
                 used.add(det.slots[other])
                 out[i] = other

@@ -172,6 +172,14 @@ class MaxMixture(MixtureMethod):
         volume = self.space[m.kind].log_volume()
         return clutter_log_density(self.null_weight, report, volume)
 
+    def _seniority(self, landmark_id: int, pose_index: int) -> float:
+        """How established a candidate is: its detections so far; none if it was not seen
+        lately (pairing it would close a loop, which seniority must not decide)."""
+        since = pose_index - self.config.merges.recent_keyframes
+        if self.context.last_seen.get(landmark_id, -1) <= since:
+            return 0.0
+        return float(len(self.context.records_of.get(landmark_id, ())))
+
     def _options(
         self, m: Measurement, c: Candidates, joint: KeyframeCovariance
     ) -> DetectionOptions:
@@ -190,9 +198,7 @@ class MaxMixture(MixtureMethod):
             log_prior=np.log((1.0 - self.null_weight) * c.semantic),
             covariance=m.covariance,
             null_log_density=self._null_log_density(m),
-            seniority=np.array(
-                [len(self.context.records_of.get(int(j), ())) for j in c.landmark_ids], float
-            ),
+            seniority=np.array([self._seniority(int(j), m.pose_index) for j in c.landmark_ids]),
         )
 
     def _custom_factor(self, record: AssociationRecord) -> AssociationRecord:

@@ -78,6 +78,7 @@ class MergeConfig:
     local_log_odds: float = setting(at_least(0.0))
     ambiguity_log_odds: float = setting(at_least(0.0))
     max_search_nodes: int = setting(at_least(1))
+    local_rivals: bool
     max_partners: int = setting(at_least(1))
     max_landmarks: int = setting(at_least(2))
 

@@ -58,6 +58,7 @@ class PairSet:
 
     def log_likelihood(self, chosen: list[int]) -> tuple[float, float]:
         """(log N(d; 0, C), d^T C^-1 d) of the stacked differences of pairs `chosen`."""
+        chosen = list(chosen)  # a tuple would index numpy arrays along several axes
         if not chosen:
             return 0.0, 0.0
         index = self._index(chosen)
@@ -68,6 +69,7 @@ class PairSet:
         return -0.5 * (d2 + log_det + len(index) * LOG_2PI), d2
 
     def score(self, chosen: list[int]) -> float:
+        chosen = list(chosen)
         return self.log_likelihood(chosen)[0] + float(np.sum(self.log_prior[chosen]))
 
     def max_gains(self) -> np.ndarray:
@@ -216,16 +218,19 @@ def pairs_to_merge(
     local_log_odds: float,
     ambiguity_log_odds: float,
     max_nodes: int,
+    local_rivals: bool = True,
 ) -> list[tuple[int, int]]:
     """The pairs of the best set that are sure enough and that no rival comes close to.
 
     Each pair kept must add `local_log_odds` to the score of the others. The best set's pairs
     that close no loop are kept if together they reach `local_log_odds`;
     those that close a loop only if they add `loop_log_odds` to what the others score (a
-    loop closure must stand on its own evidence, not borrow a sure duplicate's). A loop pair
-    is then dropped if a rival, the best set that pairs one of its landmarks with another
+    loop closure must stand on its own evidence, not borrow a sure duplicate's). A pair is
+    then dropped if a rival, the best set that pairs one of its landmarks with another
     landmark (one alike to the other of them does not count), comes within
-    `ambiguity_log_odds` of the best set. An unfinished search decides nothing."""
+    `ambiguity_log_odds` of the best set: in a row of parked cars, a duplicate of one car
+    is often as close to its neighbour (without `local_rivals`, only loop pairs have rivals).
+    An unfinished search decides nothing."""
     if not pair_set.pairs:
         return []
     best, score, finished = best_pairs(pair_set, confidence, max_nodes)
@@ -240,9 +245,7 @@ def pairs_to_merge(
         kept = list(best)
     uncontested = []
     for p in kept:
-        if not pair_set.loop[p]:
-            # Rivals matter where a wrong merge closes a false loop; a landmark seen lately
-            # mapped several times (a track split in two or three) is merged piece by piece.
+        if not local_rivals and not pair_set.loop[p]:
             uncontested.append(p)
             continue
         a, b = pair_set.pairs[p]

@@ -73,17 +73,18 @@ class MergeFinder:
         self.space = space  # where detections fall: where a landmark of its own could be
 
     def sources(self, pose_index: int) -> list[int]:
-        """Point landmarks seen lately that were seen or moved since the last check (for the
-        others nothing changed), taken out of the context's `changed` set."""
+        """Point landmarks seen lately, if any landmark was seen or moved since the last check
+        (else nothing can have changed); the context's `changed` set is emptied. All the
+        recent ones, not only the changed: a loop closure's evidence is their agreement."""
+        if not self.context.changed:
+            return []
+        self.context.changed = set()
         lms = self.context.landmarks.landmarks
         since = pose_index - self.config.recent_keyframes
-        changed, self.context.changed = self.context.changed, set()
         return sorted(
             j
-            for j in changed
-            if self.context.last_seen.get(j, -1) > since
-            and j in lms
-            and lms[j].kind is LandmarkKind.POINT
+            for j, seen in self.context.last_seen.items()
+            if seen > since and j in lms and lms[j].kind is LandmarkKind.POINT
         )
 
     def candidate_pairs(self, pose_index: int) -> list[tuple[int, int]]:
@@ -211,5 +212,6 @@ class MergeFinder:
                 c.local_log_odds,
                 c.ambiguity_log_odds,
                 c.max_search_nodes,
+                c.local_rivals,
             )
         return merged

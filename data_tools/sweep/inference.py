@@ -3,8 +3,9 @@ comparison of two methods over the same seeds. Pure functions of numbers, with s
 
 - `estimate`: the mean of a per-run figure and a 95 % percentile bootstrap interval over the
   runs (resampled 9999 times from a fixed seed, so the same results give the same interval).
-  Percentile rather than scipy's default BCa: with ten seeds BCa's jackknife acceleration is
-  itself noisy, and it is undefined where all runs agree; the percentile interval is neither.
+  Percentile rather than scipy's default BCa: BCa's corrections are estimated from the same
+  few seeds, and it is undefined (NaN, with a warning) where all runs agree, as counts of zero
+  often do; the percentile interval is always defined, and can be checked by hand.
 - `compare`: method A against method B on the runs both have: wins, ties and losses (a tie:
   within 1 cm or 1 % of the larger of the two), a two-sided Wilcoxon signed-rank p-value of
   the differences (zero differences dropped) and a two-sided sign-test p-value of wins against
@@ -58,8 +59,6 @@ def estimate(values: Sequence[float]) -> Estimate | None:
     mean = float(np.mean(data))
     if data.size == 1:
         return Estimate(mean, None, None, 1)
-    if np.all(data == data[0]):  # every resample is the same: scipy warns and gives NaN
-        return Estimate(mean, mean, mean, int(data.size))
     interval = bootstrap(
         (data,),
         np.mean,

@@ -43,7 +43,7 @@ def read_landmarks(path: Path) -> np.ndarray:
         raise InputError(f"landmarks {path}: cannot read ({exc})") from None
 
 
-def figure(log_path: Path, runs: list[Path]) -> Figure:
+def figure(log_path: Path, runs: list[Path], title: str | None = None) -> Figure:
     """A panel per run: ground truth, estimate and landmarks, seen from above."""
     log = read_log(log_path)
     if not log.has_ground_truth:
@@ -76,15 +76,17 @@ def figure(log_path: Path, runs: list[Path]) -> Figure:
         ax.set_ylabel("y (m)")
         ax.tick_params(labelsize=7)
     axes[0].legend(loc="lower left", fontsize=7)
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
 
 
-def plot_runs(log_path: Path, runs: list[Path], out: Path) -> None:
+def plot_runs(log_path: Path, runs: list[Path], out: Path, title: str | None = None) -> None:
     """The figure of `runs` to `out` (its format from the suffix), replacing it only once whole."""
     image_format = out.suffix.lstrip(".").lower()
     if image_format not in FigureCanvasBase.get_supported_filetypes():
         raise InputError(f"--out {out}: not an image format matplotlib writes (.png, .pdf, .svg)")
-    fig = figure(log_path, runs)
+    fig = figure(log_path, runs, title)
     with AtomicFile(out) as target:
         fig.savefig(target.file, dpi=110, format=image_format)

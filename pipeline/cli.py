@@ -56,6 +56,7 @@ COMMAND_EXAMPLES = {
 """,
     "sweep": """examples:
   mmslam sweep small --out out/sweep-small --workers 2
+  mmslam sweep kitti05 --out out/kitti05 --seeds 20
   mmslam sweep configs/sweeps/indoor-tags.toml --out out/indoor --dask tcp://host:8786
 """,
     "export": """examples:
@@ -180,9 +181,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         args.out,
         workers=args.workers,
         dask_address=args.dask,
+        seeds=args.seeds,
         progress=not args.quiet,
     )
     print(summary.summary_line())
+    for line in summary.method_lines:
+        print(line)
     return 1 if summary.failed else 0
 
 
@@ -344,6 +348,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=number_in(int, 1), metavar="N", help="processes (default: every core)"
     )
     sweep.add_argument("--dask", metavar="ADDRESS", help="run on a Dask cluster instead")
+    sweep.add_argument(
+        "--seeds", type=number_in(int, 1), metavar="N",
+        help="run seeds 0..N-1 instead of the config's (runs already there are kept)",
+    )  # fmt: skip
 
     replay = _subcommand(commands, "replay", "the SLAM back-end over a log", _cmd_replay)
     replay.add_argument("log", type=Path, metavar="LOG.mcap")

@@ -15,11 +15,13 @@ import pytest
 import pipeline.replay
 from data_tools.sweep import load_sweep_config, run_sweep
 from data_tools.sweep.config import Axis, SweepConfig, to_json
-from data_tools.sweep.grid import Cell
+from data_tools.sweep.grid import Cell, cells, runs
 from data_tools.sweep.report import main as report_main
-from data_tools.sweep.results import COLUMNS, ResultRow, read_results, results_text
+from data_tools.sweep.results import COLUMNS, OPTIONAL, ResultRow, read_results, results_text
 from data_tools.sweep.stats import summarise_method
 from data_tools.sweep.tables import best_text, error_table
+from pipeline.cli import main as cli_main
+from pipeline.cli import sweep_config
 from pipeline.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,6 +67,16 @@ def without_runtime(rows: list[ResultRow]) -> list[ResultRow]:
     return [replace(r, runtime_s=0.0) for r in rows]
 
 
+def without_times(tables: str) -> str:
+    """tables.md with the mean replay times (the last column of the per-cell tables) blanked:
+    a run made again takes another time."""
+    lines = tables.split("\n")
+    pipes = next(line.count("|") for line in lines if line.endswith("| Time (s) |"))
+    return "\n".join(
+        line.rsplit("|", 2)[0] + "| t |" if line.count("|") == pipes else line for line in lines
+    )
+
+
 def metrics_files(out: Path) -> dict[Path, int]:
     return {p: p.stat().st_mtime_ns for p in sorted(out.glob("runs/*/*/*/metrics.json"))}
 
@@ -104,6 +116,12 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
         assert row.rotation_max == metrics["rotation_error_rad"]["max"]
         assert row.correct + row.wrong + row.null == row.num_detections == metrics["num_detections"]
         assert row.translation_max >= row.translation_rmse >= row.translation_mean > 0
+        one_to_one = metrics["association_one_to_one"]
+        assert (row.one_to_one_wrong, row.landmarks_per_true) == (
+            one_to_one["wrong"],
+            one_to_one["landmarks_per_true"],
+        )
+        assert row.variance_scale_range == metrics["noise_scales"]["measurement"][2]
         for name in ("trajectory.tum", "landmarks.csv", "associations.csv"):
             assert (run / name).stat().st_size > 0
     # One log per (cell, seed), shared by the methods, made with the cell's factors.
@@ -122,7 +140,9 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
         assert heading in tables
     assert "| Known DA |" in tables and "| MM + NH |" in tables
     assert "Runs made by mmslam v-test" in tables
-    for figure in ("fig_noise.png", "fig_mis.png"):
+    assert "### `noise1-mis0.3`: odometry noise scale 1, misclassification 30 %" in tables
+    assert "| MM + NH vs | Seeds | Wins | Ties | Losses | Wilcoxon p | Sign test p |" in tables
+    for figure in ("fig_noise.png", "fig_mis.png", "fig_trajectories.png"):
         data = (out / figure).read_bytes()
         assert data.startswith(PNG_MAGIC) and len(data) > 10_000
     assert summary.files == (
@@ -130,8 +150,17 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
         out / "tables.md",
         out / "fig_noise.png",
         out / "fig_mis.png",
+        out / "fig_trajectories.png",
         out / "run.json",
     )
+    # A line per method, over all 3 runs of each (one seed in each of 3 cells).
+    assert [line.split(":")[0] for line in summary.method_lines] == ["Known DA", "ML", "MM + NH"]
+    counts = re.fullmatch(
+        r"MM \+ NH: translation RMSE [0-9.]+ \[[0-9.]+, [0-9.]+\] m over 3 run\(s\); "
+        r"against ML on the same 3: wins (\d), ties (\d), losses (\d)",
+        summary.method_lines[2],
+    )
+    assert counts and sum(int(n) for n in counts.groups()) == 3
     record = json.loads((out / "run.json").read_text())
     assert record["config"]["scenario"] == "indoor-tags" and record["config"]["seeds"] == [0]
     assert record["inputs"][0]["path"] == str(config)
@@ -167,8 +196,55 @@ def test_resumption_skips_finished_runs_and_gives_the_same_tables(
     summary = run_sweep(config, out, workers=1, progress=False)
     assert (summary.new, summary.kept) == (2, 7)
     assert sorted(replays) == ["noise0-mis0.1/ml", "noise1-mis0.3/mm-nh"]
-    assert (out / "tables.md").read_bytes() == tables
+    assert without_times((out / "tables.md").read_text()) == without_times(tables.decode())
     assert without_runtime(read_results(out / "results.csv")) == without_runtime(results)
+
+
+def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_sweep, tmp_path):
+    config, first, _ = tiny_sweep
+    out = tmp_path / "out"
+    shutil.copytree(first, out)
+    older = out / "runs/noise0-mis0.1/seed0/ml/metrics.json"
+    metrics = json.loads(older.read_text())
+    for key in ("association_one_to_one", "merges", "noise_scales"):
+        del metrics[key]
+    older.write_text(json.dumps(metrics))
+
+    summary = run_sweep(config, out, workers=1, progress=False)
+    assert (summary.new, summary.kept) == (0, 9)  # kept, not made again
+    rows = {(r.cell, r.method): r for r in read_results(out / "results.csv")}
+    old = rows["noise0-mis0.1", "ml"]
+    assert all(getattr(old, c) is None for c in OPTIONAL)
+    assert old.translation_rmse == metrics["translation_error_m"]["rmse"]
+    assert all(r.one_to_one_wrong is not None for r in rows.values() if r is not old)
+    section = (out / "tables.md").read_text().split("### `noise0-mis0.1`")[1].split("###")[0]
+    ml = next(line for line in section.splitlines() if line.startswith("| ML | 1 |"))
+    assert ml.split(" | ")[6:9] == ["-", "-", "-"]  # wrong, missed, landmarks per true one
+
+
+def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, tmp_path, capsys):
+    _, first, _ = tiny_sweep
+    out = tmp_path / "out"
+    shutil.copytree(first, out)
+    config = write(tmp_path, TINY.split("[[axes]]")[0])  # the base cell of the same set-up
+    args = ["sweep", str(config), "--out", str(out), "--workers", "1", "-q"]
+    assert cli_main([*args, "--seeds", "2"]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith("sweep tiny: 6 runs (3 new, 3 kept)")
+    assert [line.split(":")[0] for line in printed[1:]] == ["Known DA", "ML", "MM + NH"]
+    assert "m over 2 run(s); against ML on the same 2: wins " in printed[3]
+    assert {(r.cell, r.seed) for r in read_results(out / "results.csv")} == {
+        ("noise1-mis0.1", 0),
+        ("noise1-mis0.1", 1),
+    }
+    assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
+    with pytest.raises(SystemExit) as raised:
+        cli_main([*args, "--seeds", "0"])
+    assert raised.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--seeds: must be >= 1" in err
+    with pytest.raises(InputError, match="--seeds must be an integer of at least 1"):
+        run_sweep(config, out, seeds=0, progress=False)
 
 
 def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, tmp_path, monkeypatch):
@@ -195,7 +271,8 @@ def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, tmp_path, mon
     summary = run_sweep(config, out, workers=1, progress=False)
     assert (summary.new, summary.failed) == (1, ())
     assert not (run / "error.txt").exists()
-    assert (out / "tables.md").read_bytes() == (first / "tables.md").read_bytes()
+    tables = (out / "tables.md").read_text()
+    assert without_times(tables) == without_times((first / "tables.md").read_text())
 
 
 def test_dask_cluster_runs_the_same_runs(tiny_sweep, tmp_path):
@@ -340,22 +417,49 @@ def test_statistics_and_bold_by_hand():
 # --- configs ----------------------------------------------------------------------------------
 
 
-def test_shipped_configs_load():
-    small = load_sweep_config(SWEEPS / "small.toml")
-    assert small.scenario == "indoor-tags" and small.methods == (
-        "known",
-        "ml",
-        "gpda",
-        "mm",
-        "mm-nh",
-    )
-    indoor = load_sweep_config(SWEEPS / "indoor-tags.toml")
-    assert indoor.num_classes == 2
-    factors = {a.factor: a.values for a in indoor.axes}
-    assert min(factors["odom_noise_scale"]) == 0 and max(factors["odom_noise_scale"]) == 10
-    assert min(factors["misclassification"]) == 0 and max(factors["misclassification"]) == 0.5
-    kitti = load_sweep_config(SWEEPS / "kitti05.toml")
-    assert kitti.scenario == "kitti05-cars" and not kitti.axes
+SHIPPED = ("kitti05", "kitti05-calibrated", "indoor-tags", "indoor-tags-calibrated")
+METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
+
+
+def builtin(name: str) -> SweepConfig:
+    return load_sweep_config(sweep_config(name))  # as `mmslam sweep NAME` finds it
+
+
+def axis_values(config: SweepConfig) -> dict[str, tuple[float, ...]]:
+    return {a.factor: a.values for a in config.axes}
+
+
+def test_built_in_sweeps_load_with_the_grids_intended():
+    small = builtin("small")
+    assert small.scenario == "indoor-tags" and small.methods == METHODS
+    assert len(runs(small)) == 50  # stays small: it is the CI's sweep
+
+    for name in ("kitti05", "kitti05-calibrated"):
+        kitti = builtin(name)
+        assert (kitti.name, kitti.scenario, kitti.num_classes) == (name, "kitti05-cars", 1)
+        assert len(kitti.seeds) >= 10 and kitti.methods == METHODS
+        assert kitti.true_covariance == (name == "kitti05")
+        assert [c.name for c in cells(kitti)] == [f"noise{n}-mis0" for n in (3, 0, 1, 5)]
+
+    for name in ("indoor-tags", "indoor-tags-calibrated"):
+        indoor = builtin(name)
+        assert (indoor.name, indoor.scenario, indoor.num_classes) == (name, "indoor-tags", 2)
+        assert len(indoor.seeds) >= 10 and indoor.methods == METHODS
+        assert indoor.true_covariance == (name == "indoor-tags")
+        factors = axis_values(indoor)
+        assert factors["odom_noise_scale"] == (0, 1, 2, 4, 6, 8, 10)
+        assert factors["misclassification"] == (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
+        assert len(cells(indoor)) == 12  # the base cell lies on both axes
+
+    city = builtin("city-grid")
+    assert (city.scenario, city.num_classes, city.misclassification) == ("city-grid", 3, 0.1)
+    assert set(axis_values(city)) == {"odom_noise_scale"} and len(city.seeds) >= 10
+    assert {c.misclassification for c in cells(city)} == {0.1}
+    park = builtin("planar-park")
+    assert (park.scenario, park.num_classes, len(cells(park))) == ("planar-park", 1, 1)
+    assert len(park.seeds) >= 10
+    # The calibrated and true-covariance sweeps may not share an output folder.
+    assert len({builtin(n).fingerprint for n in SHIPPED}) == len(SHIPPED)
 
 
 BAD_CONFIGS = {

@@ -28,7 +28,7 @@ import importlib
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -255,6 +255,14 @@ def load_sweep_config(path: str | Path) -> SweepConfig:
             scenario, scenario_config, backend_config, num_classes, true_covariance
         ),
     )
+
+
+def with_seeds(config: SweepConfig, count: int) -> SweepConfig:
+    """The sweep with seeds 0..count-1 instead of its own (`--seeds`); the seeds are not part
+    of the fingerprint, so a folder's runs are kept and more seeds add to them."""
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise InputError(f"--seeds must be an integer of at least 1, got {count!r}")
+    return replace(config, seeds=tuple(range(count)))
 
 
 # --- the copy kept in the output folder, read back by the report ------------------------------

@@ -2,7 +2,8 @@
 
     python -m data_tools.sweep.report DIR
 
-rewrites DIR/tables.md and DIR/fig_<axis>.png (one per axis of the sweep).
+rewrites DIR/tables.md, DIR/fig_<axis>.png (one per axis of the sweep) and, where the runs'
+folders are there, DIR/fig_trajectories.png.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pipeline.errors import InputError
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m data_tools.sweep.report",
-        description="Redo tables.md and the box plots of a sweep folder from its results.csv.",
+        description="Redo tables.md and the figures of a sweep folder from its results.csv.",
     )
     parser.add_argument("out", type=Path, metavar="DIR", help="the folder of `mmslam sweep`")
     args = parser.parse_args(argv)

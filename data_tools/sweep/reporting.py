@@ -1,21 +1,29 @@
 """The report of a sweep folder: tables.md and a box plot per axis, made from its results.csv
-and sweep.json alone (so they can be redone without running anything: see `report.py`).
+and sweep.json alone (so they can be redone without running anything: see `report.py`), and,
+where the runs' folders are there, the paper's Fig. 5: the trajectory of one representative
+run per method in the base cell (the seed whose MM + NH RMSE is the median), by `mmslam plot`.
 """
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 from data_tools.sweep.config import SweepConfig, code_versions_of, from_json
-from data_tools.sweep.grid import axis_cells
+from data_tools.sweep.grid import RunKey, axis_cells, base_cell, log_path, run_dir
 from data_tools.sweep.plots import box_figure
 from data_tools.sweep.results import RESULTS_NAME, ResultRow, read_results
-from data_tools.sweep.tables import held_factor, render_tables
+from data_tools.sweep.stats import CHAMPION, representative_seed, rows_of_cell
+from data_tools.sweep.tables import held_factor, method_name, render_tables
 from pipeline.errors import InputError
 from pipeline.outputs import write_text
 
+logger = logging.getLogger(__name__)
+
 DESCRIPTION_NAME = "sweep.json"
 TABLES_NAME = "tables.md"
+TRAJECTORIES_NAME = "fig_trajectories.png"
+RUN_FILES = ("metrics.json", "trajectory.tum", "landmarks.csv")  # what `mmslam plot` reads
 
 
 def figure_name(axis_name: str) -> str:
@@ -30,6 +38,39 @@ def read_description(out: Path) -> tuple[SweepConfig, tuple[str, ...]]:
     except FileNotFoundError:
         raise InputError(f"{out}: no {DESCRIPTION_NAME}; is it a sweep's output folder?") from None
     return from_json(text, path), code_versions_of(text)
+
+
+def trajectory_figure(out: Path, config: SweepConfig, rows: list[ResultRow]) -> Path | None:
+    """Write the base cell's representative runs, a panel per method, to fig_trajectories.png;
+    None without an MM + NH run to choose the seed by, or (with a warning) where the runs'
+    folders are not there to plot."""
+    cell = base_cell(config)
+    mine = rows_of_cell(rows, cell)
+    seed = representative_seed(mine, CHAMPION)
+    if seed is None:
+        return None
+    folders = [run_dir(out, RunKey(cell, seed, m)) for m in config.methods]
+    folders = [f for f in folders if all((f / name).is_file() for name in RUN_FILES)]
+    log = log_path(out, cell, seed)
+    if not folders or not log.is_file():
+        logger.warning(
+            "%s: the runs of %s seed %d are not there: no %s",
+            out,
+            cell.name,
+            seed,
+            TRAJECTORIES_NAME,
+        )
+        return None
+    from data_tools.plot_runs import plot_runs
+
+    seeds = sum(r.method == CHAMPION for r in mine)
+    title = (
+        f"{config.name}, {cell.label()}: seed {seed}, the median {method_name(CHAMPION)} "
+        f"translation RMSE of {seeds} seed(s)"
+    )
+    path = out / TRAJECTORIES_NAME
+    plot_runs(log, folders, path, title)
+    return path
 
 
 def write_report(
@@ -48,7 +89,8 @@ def write_report(
         written.append(
             box_figure(rows, config.methods, axis, axis_cells(config, axis), path, title)
         )
-    return written
+    trajectories = trajectory_figure(out, config, rows)
+    return written if trajectories is None else [*written, trajectories]
 
 
 def report(out: Path) -> list[Path]:

@@ -1,6 +1,11 @@
 """`results.csv`: a row per run (cell, seed, method, every metric, runtime), written and read
 here only. Floats are written in Python's shortest round-trip form, so reading gives back the
 very numbers written.
+
+The optional columns (the one-to-one association scores, merges, the back-end's noise scales)
+are None, an empty field, wherever a run's metrics.json lacks them: runs made before the
+back-end recorded them are kept, not re-run, and a results.csv written before the columns
+existed reads with them empty.
 """
 
 from __future__ import annotations
@@ -43,10 +48,63 @@ class ResultRow:
     num_detections: int
     num_landmarks: int
     runtime_s: float  # the replay's, as metrics.json says
+    # metrics.json's association_one_to_one: landmarks matched to true ones one to one, so a
+    # duplicate's detections count as wrong; null = detections of real landmarks left to none
+    one_to_one_correct: int | None = None
+    one_to_one_wrong: int | None = None
+    one_to_one_null: int | None = None
+    one_to_one_precision: float | None = None
+    one_to_one_recall: float | None = None
+    landmarks_per_true: float | None = None
+    false_positives_used: int | None = None
+    true_landmarks_seen: int | None = None
+    merges: int | None = None
+    # metrics.json's noise_scales: variance scales of the odometry and of each measurement
+    # component at the end of the run (estimated online, or as configured)
+    variance_scale_odometry: float | None = None
+    variance_scale_bearing: float | None = None
+    variance_scale_elevation: float | None = None
+    variance_scale_range: float | None = None
 
 
 COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(ResultRow))
-_TYPES = {f.name: {"str": str, "int": int, "float": float}[str(f.type)] for f in fields(ResultRow)}
+OPTIONAL: frozenset[str] = frozenset(f.name for f in fields(ResultRow) if "None" in str(f.type))
+_KINDS = {"str": str, "int": int, "float": float, "int | None": int, "float | None": float}
+_TYPES = {f.name: _KINDS[str(f.type)] for f in fields(ResultRow)}
+ONE_TO_ONE = {  # column: key in metrics.json's association_one_to_one
+    "one_to_one_correct": "correct",
+    "one_to_one_wrong": "wrong",
+    "one_to_one_null": "null",
+    "one_to_one_precision": "precision",
+    "one_to_one_recall": "recall",
+    "landmarks_per_true": "landmarks_per_true",
+    "false_positives_used": "false_positives_used",
+    "true_landmarks_seen": "true_landmarks_seen",
+}
+MEASUREMENT_SCALES = ("variance_scale_bearing", "variance_scale_elevation", "variance_scale_range")
+
+
+def _optional(value: Any, kind: type) -> Any:
+    """`value` as `kind`, or None where it is missing or not a finite number."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        return None
+    return kind(value)
+
+
+def optional_columns(metrics: dict[str, Any]) -> dict[str, Any]:
+    """The optional columns from a metrics.json; None for each figure it does not hold."""
+    one_to_one = metrics.get("association_one_to_one")
+    one_to_one = one_to_one if isinstance(one_to_one, dict) else {}
+    scales = metrics.get("noise_scales")
+    scales = scales if isinstance(scales, dict) else {}
+    measurement = scales.get("measurement")
+    if not isinstance(measurement, list) or len(measurement) != len(MEASUREMENT_SCALES):
+        measurement = [None] * len(MEASUREMENT_SCALES)
+    values = {c: one_to_one.get(key) for c, key in ONE_TO_ONE.items()}
+    values["merges"] = metrics.get("merges")
+    values["variance_scale_odometry"] = scales.get("odometry")
+    values.update(zip(MEASUREMENT_SCALES, measurement, strict=True))
+    return {c: _optional(v, _TYPES[c]) for c, v in values.items()}
 
 
 def row_from_metrics(key: RunKey, metrics: dict[str, Any]) -> ResultRow:
@@ -74,10 +132,13 @@ def row_from_metrics(key: RunKey, metrics: dict[str, Any]) -> ResultRow:
         num_detections=int(metrics["num_detections"]),
         num_landmarks=int(metrics["num_landmarks"]),
         runtime_s=float(metrics["runtime_s"]),
+        **optional_columns(metrics),
     )
 
 
 def _text(value: Any) -> str:
+    if value is None:
+        return ""
     return repr(value) if isinstance(value, float) else str(value)
 
 
@@ -107,18 +168,26 @@ def _parse(value: str, kind: type, path: Path, line: int, column: str) -> Any:
 
 
 def read_results(path: Path) -> list[ResultRow]:
-    """The rows of a results.csv; any missing column or bad number is an `InputError`."""
+    """The rows of a results.csv; a missing column (but an optional one) or a bad number is an
+    `InputError`. An optional column missing or empty reads as None."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
     reader = csv.DictReader(io.StringIO(text))
-    missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+    present = [c for c in COLUMNS if c in (reader.fieldnames or [])]
+    missing = [c for c in COLUMNS if c not in present and c not in OPTIONAL]
     if missing:
         raise InputError(f"{path}: missing column '{missing[0]}'")
     rows = []
     for line, record in enumerate(reader, start=2):
-        if None in record or any(record[c] is None for c in COLUMNS):
+        if None in record or any(record[c] is None for c in present):
             raise InputError(f"{path} line {line}: wrong number of fields")
-        rows.append(ResultRow(**{c: _parse(record[c], _TYPES[c], path, line, c) for c in COLUMNS}))
+        values = {
+            c: None
+            if c in OPTIONAL and record[c] == ""
+            else _parse(record[c], _TYPES[c], path, line, c)
+            for c in present
+        }
+        rows.append(ResultRow(**values))
     return rows

@@ -4,6 +4,9 @@ How runs are pooled, everywhere in the reports: each run's statistic (max, mean,
 is one of its per-pose absolute errors, as in the paper's Tables I-II (one run each); a table
 gives, per method, the mean of that statistic over the runs (seeds) of a cell. Box plots and
 axis tables show the spread of a per-run statistic (its RMSE) over the seeds of each cell.
+Per-cell summaries give the mean of a per-run figure with its bootstrap interval over seeds,
+and compare MM + NH with each other method seed by seed (`inference.py`). A figure a run did
+not record (None) is left out of its statistics: they are over the runs that have it.
 """
 
 from __future__ import annotations
@@ -13,10 +16,23 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from data_tools.sweep.grid import Cell
+from data_tools.sweep.inference import Comparison, Estimate, compare, estimate
 from data_tools.sweep.results import ResultRow
 
 STATISTICS = ("max", "mean", "median", "rmse")
 QUANTITIES = ("translation", "rotation")
+# The per-run figures (results.csv columns) given per cell with a mean and an interval.
+SEED_FIGURES = (
+    "translation_rmse",
+    "rotation_rmse",
+    "one_to_one_wrong",
+    "one_to_one_null",  # missed: detections of a real landmark left to none
+    "landmarks_per_true",
+    "null",  # null-hypothesis wins, false alarms' included
+    "switches",
+)
+CHAMPION = "mm-nh"  # compared with every other method, seed by seed
+BASELINE = "ml"  # the summary lines count every method's wins against it
 
 
 @dataclass(frozen=True)
@@ -80,3 +96,94 @@ def series(
 
 def median_or_none(values: Sequence[float]) -> float | None:
     return statistics.median(values) if values else None
+
+
+def recorded(rows: Sequence[ResultRow], column: str) -> list[float]:
+    """The values of `column` in `rows`, those not recorded (None) left out."""
+    return [float(v) for r in rows if (v := getattr(r, column)) is not None]
+
+
+@dataclass(frozen=True)
+class SeedSummary:
+    """One method over the runs (seeds) of one cell: means with their intervals, and the
+    spread of the translation RMSE."""
+
+    method: str
+    runs: int
+    estimates: dict[str, Estimate | None]  # SEED_FIGURES column -> over the runs that have it
+    median_translation_rmse: float
+    worst_translation_rmse: float  # the largest over seeds
+    runtime_s: float  # mean
+
+
+def seed_summaries(rows: Sequence[ResultRow], methods: Sequence[str]) -> list[SeedSummary]:
+    """A summary per method with runs in `rows` (one cell's), in the order of `methods`."""
+    found = []
+    for method in methods:
+        mine = [r for r in rows if r.method == method]
+        if not mine:
+            continue
+        rmse = recorded(mine, "translation_rmse")
+        found.append(
+            SeedSummary(
+                method=method,
+                runs=len(mine),
+                estimates={c: estimate(recorded(mine, c)) for c in SEED_FIGURES},
+                median_translation_rmse=statistics.median(rmse),
+                worst_translation_rmse=max(rmse),
+                runtime_s=statistics.fmean(recorded(mine, "runtime_s")),
+            )
+        )
+    return found
+
+
+def by_run(rows: Sequence[ResultRow], method: str) -> dict[tuple[str, int], float]:
+    """The translation RMSE of each run of `method`, by (cell, seed): what pairs the runs of
+    two methods."""
+    return {(r.cell, r.seed): r.translation_rmse for r in rows if r.method == method}
+
+
+def comparisons(
+    rows: Sequence[ResultRow], methods: Sequence[str], champion: str = CHAMPION
+) -> list[tuple[str, Comparison]]:
+    """`champion` against each other method with runs in `rows`, on translation RMSE over the
+    runs both have; none when `champion` has no run."""
+    ours = by_run(rows, champion)
+    if not ours:
+        return []
+    others = [(m, by_run(rows, m)) for m in methods if m != champion]
+    return [(m, compare(ours, theirs)) for m, theirs in others if theirs]
+
+
+def representative_seed(rows: Sequence[ResultRow], method: str = CHAMPION) -> int | None:
+    """The seed whose run of `method` has the median translation RMSE among `rows` (one
+    cell's): the lower middle one for an even count, ties by seed. None without a run."""
+    ranked = sorted((r.translation_rmse, r.seed) for r in rows if r.method == method)
+    return ranked[(len(ranked) - 1) // 2][1] if ranked else None
+
+
+@dataclass(frozen=True)
+class Headline:
+    """One method over every run of a sweep, for the line the command ends with."""
+
+    method: str
+    runs: int
+    translation_rmse: Estimate | None
+    against_baseline: Comparison | None  # None for the baseline itself, or without it
+
+
+def headlines(
+    rows: Sequence[ResultRow], methods: Sequence[str], baseline: str = BASELINE
+) -> list[Headline]:
+    """A headline per method with runs, in the order of `methods`: its mean translation RMSE
+    over all runs with an interval, and its wins against `baseline` over the same cells and
+    seeds."""
+    theirs = by_run(rows, baseline)
+    found = []
+    for method in methods:
+        ours = by_run(rows, method)
+        if not ours:
+            continue
+        paired = compare(ours, theirs) if theirs and method != baseline else None
+        found.append(Headline(method, len(ours), estimate(list(ours.values())), paired))
+    return found

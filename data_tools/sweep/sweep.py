@@ -20,11 +20,13 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json
+from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json, with_seeds
 from data_tools.sweep.executors import default_workers, execute
 from data_tools.sweep.grid import RUNS_DIR, RunKey, log_path, run_dir, runs
 from data_tools.sweep.reporting import DESCRIPTION_NAME, read_description, write_report
 from data_tools.sweep.results import RESULTS_NAME, row_from_metrics, write_results
+from data_tools.sweep.stats import headlines
+from data_tools.sweep.tables import headline_text
 from data_tools.sweep.work import (
     ERROR_FILE,
     RunOutcome,
@@ -49,6 +51,7 @@ class SweepSummary:
     failed: tuple[str, ...]  # "cell/seed/method: error", runs that raised
     seconds: float
     files: tuple[Path, ...]  # results.csv, tables.md, figures
+    method_lines: tuple[str, ...] = ()  # per method: mean translation RMSE, wins against ML
 
     def summary_line(self) -> str:
         line = (
@@ -217,10 +220,12 @@ def run_sweep(
     *,
     workers: int | None = None,
     dask_address: str | None = None,
+    seeds: int | None = None,
     progress: bool = True,
 ) -> SweepSummary:
     """Run every unfinished run of the sweep `config_path` into `out`, then write
     results.csv, tables.md and a figure per axis there. Runs finished earlier are kept.
+    `seeds` replaces the config's seeds by 0..seeds-1.
 
     `workers` local processes (default: the cores), or the workers of the Dask scheduler at
     `dask_address`. Local workers are spawned, so a script that calls this with more than one
@@ -231,6 +236,8 @@ def run_sweep(
     if workers is not None and dask_address is not None:
         raise InputError("--workers and --dask exclude each other: the cluster has its workers")
     config = load_sweep_config(config_path)
+    if seeds is not None:
+        config = with_seeds(config, seeds)
     out = Path(out)
     code_versions = claim_folder(out, config)
 
@@ -266,4 +273,5 @@ def run_sweep(
         failed=tuple(failed),
         seconds=time.perf_counter() - start,
         files=tuple(files),
+        method_lines=tuple(headline_text(h) for h in headlines(rows, config.methods)),
     )

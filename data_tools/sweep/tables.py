@@ -1,4 +1,6 @@
-"""Markdown tables like the paper's Tables I-II, and per-axis tables beside the box plots."""
+"""Markdown tables like the paper's Tables I-II, per-axis tables beside the box plots, and per
+cell the means over seeds with their intervals and MM + NH's paired comparisons; the summary
+lines the sweep command ends with."""
 
 from __future__ import annotations
 
@@ -6,12 +8,19 @@ from collections.abc import Sequence
 
 from data_tools.sweep.config import FACTOR_LABELS, Axis, SweepConfig
 from data_tools.sweep.grid import Cell, axis_cells, base_cell, cells
+from data_tools.sweep.inference import CONFIDENCE, RESAMPLES, TIE_M, TIE_SHARE, Comparison, Estimate
 from data_tools.sweep.results import ResultRow
 from data_tools.sweep.stats import (
+    BASELINE,
+    CHAMPION,
     STATISTICS,
+    Headline,
     MethodSummary,
+    SeedSummary,
+    comparisons,
     median_or_none,
     rows_of_cell,
+    seed_summaries,
     series,
     summarise_methods,
 )
@@ -20,6 +29,17 @@ METHOD_NAMES = {"known": "Known DA", "ml": "ML", "gpda": "GPDA", "mm": "MM", "mm
 REFERENCE = "known"  # shown for reference, never bold: the others are compared with each other
 TRANSLATION_DIGITS = 2
 ROTATION_DIGITS = 4
+# The per-cell table's figures (stats.SEED_FIGURES): heading and digits.
+SEED_COLUMNS = {
+    "translation_rmse": ("Translation RMSE (m)", TRANSLATION_DIGITS),
+    "rotation_rmse": ("Rotation RMSE (rad)", ROTATION_DIGITS),
+    "one_to_one_wrong": ("Wrong", 1),
+    "one_to_one_null": ("Missed", 1),
+    "landmarks_per_true": ("Landmarks / true", 2),
+    "null": ("Null wins", 1),
+    "switches": ("Switches", 1),
+}
+RUNTIME_DIGITS = 1
 
 
 def method_name(method: str) -> str:
@@ -80,6 +100,106 @@ def association_table(summaries: Sequence[MethodSummary]) -> str:
     ]
     header = ["Method", "Correct", "Wrong", "Null", "Landmarks", "Switches"]
     return markdown_table(header, rows)
+
+
+def estimate_text(value: Estimate | None, digits: int) -> str:
+    """`mean [low, high]`; the mean alone for a single run; `-` for none."""
+    if value is None:
+        return "-"
+    mean = f"{value.mean:.{digits}f}"
+    if value.low is None or value.high is None:
+        return mean
+    return f"{mean} [{value.low:.{digits}f}, {value.high:.{digits}f}]"
+
+
+def p_text(p: float | None) -> str:
+    return "-" if p is None else f"{p:.3g}"
+
+
+def seed_table(summaries: Sequence[SeedSummary]) -> str:
+    """Per method: mean [95 % interval] over seeds of each figure; the median and worst
+    translation RMSE; the mean replay time."""
+    header = ["Method", "Runs"]
+    for column, (title, _) in SEED_COLUMNS.items():
+        header.append(title)
+        if column == "translation_rmse":
+            header += ["Median", "Worst"]
+    header.append("Time (s)")
+    body = []
+    for m in summaries:
+        row = [method_name(m.method), str(m.runs)]
+        for column, (_, digits) in SEED_COLUMNS.items():
+            row.append(estimate_text(m.estimates[column], digits))
+            if column == "translation_rmse":
+                row += [
+                    _cell(m.median_translation_rmse, TRANSLATION_DIGITS),
+                    _cell(m.worst_translation_rmse, TRANSLATION_DIGITS),
+                ]
+        row.append(_cell(m.runtime_s, RUNTIME_DIGITS))
+        body.append(row)
+    return markdown_table(header, body)
+
+
+def comparison_table(compared: Sequence[tuple[str, Comparison]]) -> str:
+    header = [f"{method_name(CHAMPION)} vs", "Seeds", "Wins", "Ties", "Losses"]
+    header += ["Wilcoxon p", "Sign test p"]
+    body = [
+        [
+            method_name(method),
+            *(str(n) for n in (c.pairs, c.wins, c.ties, c.losses)),
+            *(p_text(p) for p in (c.wilcoxon_p, c.sign_p)),
+        ]
+        for method, c in compared
+    ]
+    return markdown_table(header, body)
+
+
+def cell_sections(config: SweepConfig, rows: Sequence[ResultRow]) -> list[str]:
+    """For every cell with runs: the seed table and MM + NH's paired comparisons."""
+    parts = [
+        "## Per cell: means over seeds, and MM + NH seed by seed\n",
+        f"Each figure: the mean over the cell's runs (seeds) and, in brackets, its "
+        f"{100 * CONFIDENCE:g} % percentile bootstrap interval ({RESAMPLES} resamples, fixed "
+        "seed). Wrong and missed: detections of a real landmark that went to another landmark "
+        "(a duplicate included) or to none, with landmarks matched to true ones one to one; "
+        "landmarks / true: estimated landmarks holding a real landmark's detection, per real "
+        "landmark seen; null wins: every detection left to the null hypothesis, false alarms' "
+        "included. Median and worst: of the runs' translation RMSE. Time: the mean replay. "
+        "`-`: no run recorded the figure (runs made before it was recorded).\n",
+        f"{method_name(CHAMPION)} against each method on the same seeds, by translation RMSE: "
+        f"a win is a lower RMSE, a tie within {100 * TIE_M:g} cm or {100 * TIE_SHARE:g} % of the "
+        "larger; two-sided p-values of the Wilcoxon signed-rank test on the differences (zero "
+        "differences left out) and of the sign test on wins against losses; `-`: nothing to "
+        "test.\n",
+    ]
+    for cell in cells(config):
+        mine = rows_of_cell(rows, cell)
+        if not mine:
+            continue
+        parts += [
+            f"### `{cell.name}`: {cell.label()}\n",
+            seed_table(seed_summaries(mine, config.methods)),
+        ]
+        compared = comparisons(mine, config.methods)
+        if compared:
+            parts.append(comparison_table(compared))
+    return parts
+
+
+def headline_text(headline: Headline) -> str:
+    """A line for the end of the sweep command."""
+    line = (
+        f"{method_name(headline.method)}: translation RMSE "
+        f"{estimate_text(headline.translation_rmse, TRANSLATION_DIGITS)} m over "
+        f"{headline.runs} run(s)"
+    )
+    c = headline.against_baseline
+    if c is not None:
+        line += (
+            f"; against {method_name(BASELINE)} on the same {c.pairs}: wins {c.wins}, "
+            f"ties {c.ties}, losses {c.losses}"
+        )
+    return line
 
 
 def factor_text(factor: str, value: float) -> str:
@@ -158,4 +278,4 @@ def render_tables(
             f"## Axis `{axis.name}`: rotation RMSE (rad) against {title}\n",
             axis_table(rows, config.methods, axis, along, "rotation_rmse", ROTATION_DIGITS),
         ]
-    return "\n".join(parts)
+    return "\n".join(parts + cell_sections(config, rows))

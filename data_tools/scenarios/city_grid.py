@@ -30,6 +30,7 @@ from data_tools.scenarios.common import (
     floats,
     metadata_for,
     source_text,
+    vehicle_class_names,
 )
 from data_tools.scenarios.geometry import bearing_elevation_range, relative_poses
 from data_tools.scenarios.noise import (
@@ -298,15 +299,6 @@ def false_alarms(
     return pose_index, kinds, local
 
 
-def class_names(vehicles: tuple[VehicleType, ...], num_classes: int) -> list[str]:
-    """Vehicle type k is class k mod C; a class's name lists the types it holds."""
-    names = []
-    for c in range(num_classes):
-        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
-        names.append("+".join(members) if members else f"class-{c}")
-    return names
-
-
 # --- the run --------------------------------------------------------------------------------
 
 
@@ -361,7 +353,7 @@ def simulate(
         )
         for m in range(len(vehicles))
     ]
-    names = class_names(config.vehicles, num_classes)
+    names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,6 +90,16 @@ class SimulationSummary:
             f"({self.num_false_positives} false) of {self.num_landmarks_seen}/"
             f"{self.num_landmarks} landmarks, {self.num_classes} classes -> {self.out}"
         )
+
+
+def vehicle_class_names(vehicles: Sequence, num_classes: int) -> list[str]:
+    """Vehicle type k (anything with a `name`) is class k mod C; a class's name lists the
+    types it holds."""
+    names = []
+    for c in range(num_classes):
+        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
+        names.append("+".join(members) if members else f"class-{c}")
+    return names
 
 
 def floats(values: np.ndarray) -> tuple[float, ...]:

@@ -29,6 +29,7 @@ from data_tools.scenarios.common import (
     floats,
     metadata_for,
     source_text,
+    vehicle_class_names,
 )
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
@@ -478,15 +479,6 @@ def _concatenate(a: DetectionBatch, b: DetectionBatch) -> DetectionBatch:
 # --- the run --------------------------------------------------------------------------------
 
 
-def class_names(vehicles: tuple[VehicleClass, ...], num_classes: int) -> list[str]:
-    """Vehicle type k is class k mod C; a class's name lists the types it holds."""
-    names = []
-    for c in range(num_classes):
-        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
-        names.append("+".join(members) if members else f"class-{c}")
-    return names
-
-
 def simulate(
     config: Kitti05CarsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
@@ -528,7 +520,7 @@ def simulate(
         )
         for m in range(len(world.car_types))
     ]
-    names = class_names(config.vehicles, num_classes)
+    names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=world.poses,

@@ -80,11 +80,12 @@ class MergeFinder:
             return []
         self.context.changed = set()
         lms = self.context.landmarks.landmarks
-        since = pose_index - self.config.recent_keyframes
         return sorted(
             j
-            for j, seen in self.context.last_seen.items()
-            if seen > since and j in lms and lms[j].kind is LandmarkKind.POINT
+            for j in self.context.last_seen
+            if self.context.seen_lately(j, pose_index)
+            and j in lms
+            and lms[j].kind is LandmarkKind.POINT
         )
 
     def candidate_pairs(self, pose_index: int) -> list[tuple[int, int]]:
@@ -163,11 +164,10 @@ class MergeFinder:
         # Two landmarks both seen lately that were not associated are the association gate's
         # tail, so their merge gate is the wider local_confidence; one seen long ago would close
         # a loop, and its pair passes at confidence.
-        since = pose_index - c.recent_keyframes
         pairs, differences, loop = [], [], []
         covariance = difference_covariance(joint, candidates, slots, DIM)
         for p, (a, b) in enumerate(candidates):
-            closes_loop = context.last_seen.get(b, -1) <= since
+            closes_loop = not context.seen_lately(b, pose_index)
             gate = assoc.chi2_gate(DIM, c.confidence if closes_loop else c.local_confidence)
             diff = positions[a] - positions[b]
             block = covariance[p * DIM : (p + 1) * DIM, p * DIM : (p + 1) * DIM]

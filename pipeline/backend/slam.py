@@ -131,12 +131,11 @@ class Backend:
             for k, d in enumerate(detections)
         ]
         if self.method.uses_candidates:
-            since = prediction.pose_index - self.config.merges.recent_keyframes
             n = self.config.noise
             candidates = self.scorer.score(
                 prediction,
                 measurements,
-                is_recent=lambda j: self.context.last_seen.get(j, -1) > since,
+                is_recent=lambda j: self.context.seen_lately(j, prediction.pose_index),
                 # now and then the whole joint test, so that sure pairings tell the noise too
                 full=n.estimate and prediction.pose_index % n.sample_every == 0,
             )

@@ -60,6 +60,12 @@ class BackendContext:
             self.last_seen[j] = max(self.last_seen.get(j, pose), pose)
             self.changed.add(j)
 
+    def seen_lately(self, landmark_id: int, pose_index: int) -> bool:
+        """Whether the landmark was seen within the last `[merges] recent_keyframes` keyframes
+        before `pose_index`: pairing a landmark not seen lately closes a loop."""
+        since = pose_index - self.config.merges.recent_keyframes
+        return self.last_seen.get(landmark_id, -1) > since
+
     def observed_at(self, landmark_id: int) -> set[int]:
         """Pose indices of the detections now associated with the landmark."""
         return {

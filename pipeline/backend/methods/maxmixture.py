@@ -119,7 +119,7 @@ class MaxMixture(MixtureMethod):
             self._options(m, c, joint) for m, c in zip(measurements, candidates, strict=True)
         ]
         kept = [np.arange(len(c)) for c in candidates]  # candidate index of each option
-        since = measurements[0].pose_index - self.config.merges.recent_keyframes
+        pose_index = measurements[0].pose_index
         while True:
             problem = KeyframeProblem(
                 detections=[o.subset(k) for o, k in zip(options, kept, strict=True)],
@@ -141,7 +141,7 @@ class MaxMixture(MixtureMethod):
                 i
                 for i, k in enumerate(chosen)
                 if k != NONE
-                and self.context.last_seen.get(int(candidates[i].landmark_ids[k]), -1) <= since
+                and not self.context.seen_lately(int(candidates[i].landmark_ids[k]), pose_index)
             ]
             if not loops or len(loops) >= a.min_loop_pairs:
                 break
@@ -175,8 +175,7 @@ class MaxMixture(MixtureMethod):
     def _seniority(self, landmark_id: int, pose_index: int) -> float:
         """How established a candidate is: its detections so far; none if it was not seen
         lately (pairing it would close a loop, which seniority must not decide)."""
-        since = pose_index - self.config.merges.recent_keyframes
-        if self.context.last_seen.get(landmark_id, -1) <= since:
+        if not self.context.seen_lately(landmark_id, pose_index):
             return 0.0
         return float(len(self.context.records_of.get(landmark_id, ())))
 

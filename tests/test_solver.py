@@ -91,6 +91,53 @@ def test_an_update_cholesky_refuses_is_solved_again_with_qr():
 NOISE_3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.05)
 
 
+class RefusingMarginals(Refusing):
+    """An iSAM2 whose updates go through but whose marginals Cholesky refuses."""
+
+    def update(self, *args):
+        return self._isam.update(*args)
+
+    def marginalCovariance(self, key):  # noqa: N802 - GTSAM's name
+        raise RuntimeError(INDETERMINATE)
+
+    def jointMarginalCovariance(self, keys):  # noqa: N802
+        raise RuntimeError(INDETERMINATE)
+
+
+@pytest.mark.parametrize("query", ["marginal", "joint"])
+def test_marginals_cholesky_refuses_are_computed_with_qr(query):
+    """The new pose and its odometry are pending when the association step asks for
+    marginals: the QR rebuild takes them in, and the answer is the plain solver's."""
+    config = load_config().isam2
+    plain, flaky = Isam2Solver(config), Isam2Solver(config)
+    for solver in (plain, flaky):
+        build(solver)
+        solver.update()
+        solver.add(gtsam.BetweenFactorPose3(X(3), X(4), STEP, NOISE))
+        solver.insert(X(4), gtsam.Pose3(gtsam.Rot3(), np.array([4.2, 0.0, 0.0])))
+    plain.update()
+    flaky.isam = RefusingMarginals(flaky.isam)
+    if query == "marginal":
+        got, want = flaky.marginal_covariance(X(2)), plain.marginal_covariance(X(2))
+    else:
+        got, want = flaky.joint_covariance([X(2), L(0)]), plain.joint_covariance([X(2), L(0)])
+    assert flaky.factorization == "QR" and not flaky.has_pending
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    np.testing.assert_allclose(flaky.pose(X(4)).matrix(), plain.pose(X(4)).matrix(), atol=1e-6)
+    flaky.update()  # nothing pending is applied twice
+
+
+def test_marginals_qr_refuses_end_in_one_line():
+    solver = Isam2Solver(load_config().isam2)
+    build(solver)
+    solver.update()
+    solver.factorization = "QR"
+    solver.isam = RefusingMarginals(solver.isam)
+    with pytest.raises(SolverError, match=r"^marginals after iSAM2 update 1 failed") as raised:
+        solver.marginal_covariance(X(1))
+    assert "\n" not in str(raised.value)
+
+
 def test_other_failures_end_in_one_line():
     solver = Isam2Solver(load_config().isam2)
     solver.insert(X(0), gtsam.Pose3())  # a variable no factor constrains
@@ -130,3 +177,25 @@ def test_a_planar_log_with_stiff_odometry_replays(tmp_path, generous_planar_log,
     assert np.isfinite(rmse)
     if method == "known":  # the true landmarks correct the odometry's drift
         assert rmse < dead_reckoning_rmse(generous_planar_log)
+
+
+def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
+    """A NaN estimate (a diverged solve) stops the replay with one line, not a traceback from
+    wherever the NaN is first used."""
+    from tests.synthetic import Scene, square_loop, write_scene
+
+    landmarks = np.array([[5.0, -3.0, 0.5], [12.0, -3.0, 0.5], [23.0, 6.0, 0.5]])
+    scene = Scene(square_loop(20.0, 1.0, laps=0.5), landmarks, np.zeros(3, dtype=int))
+    log = write_scene(tmp_path / "det.mcap", scene, seed=1, odom_noise=1.0)
+    real = Isam2Solver.marginal_covariance
+    calls = []
+
+    def diverging(self, key):
+        calls.append(key)
+        covariance = real(self, key)
+        return covariance * np.nan if len(calls) > 3 else covariance
+
+    monkeypatch.setattr(Isam2Solver, "marginal_covariance", diverging)
+    with pytest.raises(SolverError, match=r"the estimate diverged: x[0-9]+ or its covariance") as e:
+        replay(log, "mm-nh", tmp_path / "out", load_config(), progress=False)
+    assert "\n" not in str(e.value) and len(calls) > 3

@@ -29,6 +29,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import AssociationConfig
+from pipeline.errors import SolverError
 from pipeline.geometry import bearing_elevation_range_jacobian
 
 
@@ -173,6 +174,11 @@ class CandidateScorer:
         if not measurements or len(self.landmarks) == 0:
             return [Candidates.none() for _ in measurements]
         pose_cov = prediction.covariance(self.solver.marginal_covariance(prediction.anchor_key))
+        if not (np.all(np.isfinite(pose_cov)) and np.all(np.isfinite(prediction.pose.matrix()))):
+            raise SolverError(
+                f"the estimate diverged: {gtsam.DefaultKeyFormatter(prediction.anchor_key)} "
+                "or its covariance is not finite"
+            )
         nearby = []
         for m in measurements:
             center, radius = search_radius(

@@ -4,8 +4,8 @@ estimates and marginals the association step asks for.
 A valid graph can still defeat Cholesky: GTSAM refuses a frontal block whose conditioning is
 too poor ("Indeterminate linear system"), which stiff odometry (variances of 1e-6 on the
 degrees of freedom a planar robot does not move in) beside loose landmarks can produce. Then
-the whole graph is solved again with QR factorisation, which does without that test, and the
-solver keeps QR from there on.
+the whole graph is solved again with QR factorisation, which does without that test, and with
+Dogleg steps; the solver keeps both from there on. Marginals refused the same way do the same.
 """
 
 from __future__ import annotations
@@ -86,7 +86,13 @@ class Isam2Solver:
         params.setRelinearizeThreshold(relinearization_thresholds(c, self.pose_landmarks))
         params.relinearizeSkip = c.relinearize_skip
         params.enablePartialRelinearizationCheck = c.partial_relinearization_check
-        optimisation = gtsam.ISAM2GaussNewtonParams()
+        # The QR fallback takes over a graph Cholesky found ill-conditioned, often one a wrong
+        # loop closure bent: Gauss-Newton steps there can oscillate (relinearising every
+        # variable at every update) and diverge, where Dogleg's trust region converges.
+        if factorization == "QR":
+            optimisation = gtsam.ISAM2DoglegParams()
+        else:
+            optimisation = gtsam.ISAM2GaussNewtonParams()
         optimisation.setWildfireThreshold(c.wildfire_threshold)
         params.setOptimizationParams(optimisation)
         params.setFactorization(factorization)
@@ -120,24 +126,27 @@ class Isam2Solver:
         try:
             result = self.isam.update(graph, self._values, self._removals)
         except RuntimeError as exc:
-            reason = gtsam_reason(str(exc))
-            if self.factorization == "QR" or "Indeterminate" not in reason:
-                raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
-            logger.warning(
-                "iSAM2 update %d: %s; solving the graph again with QR factorisation",
-                self.num_updates,
-                reason,
-            )
+            self._check_qr_can_help(exc, f"iSAM2 update {self.num_updates}")
             result = self._solve_again_with_qr()
         else:
             for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
                 self._slots[handle] = slot
+        self._clear_pending()
+        self.num_updates += 1
+        return set(result.getMarkedKeys())
+
+    def _clear_pending(self) -> None:
         self._committed.update(self._pending)
         self._values = gtsam.Values()
         self._pending = {}
         self._removals = []
-        self.num_updates += 1
-        return set(result.getMarkedKeys())
+
+    def _check_qr_can_help(self, exc: RuntimeError, what: str) -> None:
+        """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried."""
+        reason = gtsam_reason(str(exc))
+        if self.factorization == "QR" or "Indeterminate" not in reason:
+            raise SolverError(f"{what} failed: {reason}") from exc
+        logger.warning("%s: %s; solving the graph again with QR factorisation", what, reason)
 
     def _solve_again_with_qr(self) -> gtsam.ISAM2Result:
         """A new iSAM2 with QR factorisation, given every factor in the graph (committed and
@@ -192,8 +201,24 @@ class Isam2Solver:
         return out
 
     def marginal_covariance(self, key: int) -> np.ndarray:
-        return self.isam.marginalCovariance(key)
+        try:
+            return self.isam.marginalCovariance(key)
+        except RuntimeError as exc:
+            self._marginals_need_qr(exc)
+            return self.isam.marginalCovariance(key)
 
     def joint_covariance(self, keys: list[int]) -> np.ndarray:
         """Joint marginal covariance of `keys`, blocks in the order given."""
-        return self.isam.jointMarginalCovariance(keys).fullMatrix()
+        try:
+            return self.isam.jointMarginalCovariance(keys).fullMatrix()
+        except RuntimeError as exc:
+            self._marginals_need_qr(exc)
+            return self.isam.jointMarginalCovariance(keys).fullMatrix()
+
+    def _marginals_need_qr(self, exc: RuntimeError) -> None:
+        """Marginals eliminate with the update's factorisation, so Cholesky's conditioning test
+        can refuse a variable held only by its weak prior (a landmark every mixture of which
+        chose another): the solver moves to QR as an update would, taking what is pending."""
+        self._check_qr_can_help(exc, f"marginals after iSAM2 update {self.num_updates}")
+        self._solve_again_with_qr()
+        self._clear_pending()

@@ -13,6 +13,7 @@ from pipeline.config import load_config
 from pipeline.errors import SolverError
 from pipeline.log import read_log
 from pipeline.replay import replay
+from tests.synthetic import Scene, square_loop, write_scene
 
 INDETERMINATE = (
     "\nIndeterminate linear system detected while working near variable\n"
@@ -182,8 +183,6 @@ def test_a_planar_log_with_stiff_odometry_replays(tmp_path, generous_planar_log,
 def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
     """A NaN estimate (a diverged solve) stops the replay with one line, not a traceback from
     wherever the NaN is first used."""
-    from tests.synthetic import Scene, square_loop, write_scene
-
     landmarks = np.array([[5.0, -3.0, 0.5], [12.0, -3.0, 0.5], [23.0, 6.0, 0.5]])
     scene = Scene(square_loop(20.0, 1.0, laps=0.5), landmarks, np.zeros(3, dtype=int))
     log = write_scene(tmp_path / "det.mcap", scene, seed=1, odom_noise=1.0)

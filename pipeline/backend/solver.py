@@ -11,6 +11,7 @@ Dogleg steps; the solver keeps both from there on. Marginals refused the same wa
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 import gtsam
 import numpy as np
@@ -201,24 +202,22 @@ class Isam2Solver:
         return out
 
     def marginal_covariance(self, key: int) -> np.ndarray:
-        try:
-            return self.isam.marginalCovariance(key)
-        except RuntimeError as exc:
-            self._marginals_need_qr(exc)
-            return self.isam.marginalCovariance(key)
+        return self._marginal(lambda: self.isam.marginalCovariance(key))
 
     def joint_covariance(self, keys: list[int]) -> np.ndarray:
         """Joint marginal covariance of `keys`, blocks in the order given."""
-        try:
-            return self.isam.jointMarginalCovariance(keys).fullMatrix()
-        except RuntimeError as exc:
-            self._marginals_need_qr(exc)
-            return self.isam.jointMarginalCovariance(keys).fullMatrix()
+        return self._marginal(lambda: self.isam.jointMarginalCovariance(keys).fullMatrix())
 
-    def _marginals_need_qr(self, exc: RuntimeError) -> None:
-        """Marginals eliminate with the update's factorisation, so Cholesky's conditioning test
+    def _marginal(self, query: Callable[[], np.ndarray]) -> np.ndarray:
+        """`query` of the current iSAM2, asked again after a move to QR if Cholesky refuses it.
+
+        Marginals eliminate with the update's factorisation, so Cholesky's conditioning test
         can refuse a variable held only by its weak prior (a landmark every mixture of which
         chose another): the solver moves to QR as an update would, taking what is pending."""
-        self._check_qr_can_help(exc, f"marginals after iSAM2 update {self.num_updates}")
-        self._solve_again_with_qr()
-        self._clear_pending()
+        try:
+            return query()
+        except RuntimeError as exc:
+            self._check_qr_can_help(exc, f"marginals after iSAM2 update {self.num_updates}")
+            self._solve_again_with_qr()
+            self._clear_pending()
+            return query()

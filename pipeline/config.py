@@ -95,6 +95,10 @@ class NoiseConfig:
     min_scale: float = setting(FRACTION)
     max_scale: float = setting(at_least(1.0))
     max_step: float = setting(at_least(1.0))
+    drift_window: int = setting(at_least(1))
+    drift_windows: int = setting(at_least(1))
+    min_drift_windows: int = setting(at_least(1))
+    drift_deadband: float = setting(at_least(1.0))
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,7 @@
 
 import dataclasses
 
+import gtsam
 import numpy as np
 import pytest
 
@@ -185,3 +186,46 @@ def test_keyframes_without_detections_before_the_first_landmark(tmp_path, method
     result = replay(log, method, tmp_path / method, load_config(), progress=False)
     assert result.num_landmarks == 2
     assert result.metrics["association"]["correct"] == 10
+
+
+def drift_config(**noise):
+    """Short windows for a short log: the odometry scale looked at every 10 keyframes."""
+    config = load_config()
+    n = dataclasses.replace(
+        config.noise, update_every=10, drift_window=10, min_drift_windows=3, **noise
+    )
+    return dataclasses.replace(config, noise=n)
+
+
+def odometry_information(backend: Backend) -> list[float]:
+    """The (0, 0) information of every odometry factor now in iSAM2 (pose to pose)."""
+    graph = backend.solver.isam.getFactorsUnsafe()
+    out = []
+    for k in range(graph.size()):
+        factor = graph.at(k)
+        if (
+            factor is not None
+            and factor.size() == 2
+            and all(chr(gtsam.Symbol(key).chr()) == "x" for key in factor.keys())  # noqa: SIM118
+        ):
+            out.append(float(factor.noiseModel().information()[0, 0]))
+    return out
+
+
+@pytest.mark.parametrize("odom_noise", [1.0, 4.0])
+def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene, odom_noise):
+    """The log states the odometry's covariance; its steps err odom_noise times more (in
+    sigma). mm-nh raises the odometry's scale where it is understated, never where it is
+    right, and every odometry factor of the graph then carries the new scale."""
+    scene = dataclasses.replace(square_scene, poses=square_loop(20.0, 1.0, laps=3.0))
+    log = write_scene(tmp_path / "drift.mcap", scene, seed=2, odom_noise=odom_noise)
+    backend = run_backend(log, "mm-nh", drift_config())
+    scale = backend.noise.odometry
+    if odom_noise == 1.0:
+        assert scale == 1.0
+    else:
+        assert 4.0 <= scale <= 4 * odom_noise**2
+    stated = 1.0 / 0.001**2  # ODOM_SIGMAS[0]: rx
+    information = odometry_information(backend)
+    assert len(information) == len(scene.poses) - 1
+    np.testing.assert_allclose(information, stated / scale, rtol=1e-9)

@@ -23,7 +23,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, make_method
-from pipeline.backend.noise import NoiseScales, updated
+from pipeline.backend.noise import NoiseScales, OdometryDrift, updated
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 from pipeline.log.messages import Detection, Odometry
@@ -84,7 +84,16 @@ class Backend:
         self.merges = 0
         n = config.noise
         self.noise = NoiseScales(n.odometry_scale, tuple(n.measurement_scale))
+        # Only a method that estimates the measurement noise (its sure pairings) rescales.
+        self.estimates_noise = n.estimate and self.method.wants_joint
+        self.drift = (
+            OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows)
+            if self.estimates_noise
+            else None
+        )
         self.records: list[AssociationRecord] = []
+        # (handle, odometry) of each pose's odometry factor, while its scale may change
+        self._odometry: list[tuple[int, Odometry]] = []
         self.num_poses = 0
         self.switches = 0
         self.step_seconds: list[float] = []
@@ -110,8 +119,12 @@ class Backend:
             return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
         step = pose_from_message(odometry.translation, odometry.rotation)
         pose = self.solver.pose(X(index - 1)).compose(step)
-        covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
-        self.solver.add(odometry_factor(X(index - 1), X(index), odometry, covariance))
+        stated = np.reshape(odometry.covariance, (6, 6))
+        covariance = self.noise.odometry * stated
+        handle = self.solver.add(odometry_factor(X(index - 1), X(index), odometry, covariance))
+        if self.drift is not None:
+            self.drift.add_step(step, stated)
+            self._odometry.append((handle, odometry))
         self.solver.insert(X(index), pose)
         return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
 
@@ -156,8 +169,9 @@ class Backend:
         merged = self.merge(prediction.pose_index)
         if merged:
             switched += self.method.refine(self.context.after_update(self.solver.update()))
+        if self._rescale_noise(prediction.pose_index):
+            switched += self.method.refine(self.context.after_update(self.solver.rebuild()))
         switched = self._changed(switched)
-        self._rescale_noise(prediction.pose_index)
         for record in switched:
             self.context.seen(record)
         self.switches += len(switched)
@@ -180,17 +194,55 @@ class Backend:
                 changed.append(r)
         return changed
 
-    def _rescale_noise(self, pose_index: int) -> None:
-        """Every few keyframes, the noise scales corrected by the latest sure pairings."""
+    def _rescale_noise(self, pose_index: int) -> bool:
+        """Every few keyframes, the noise scales corrected: the measurement's by the latest
+        sure pairings, the odometry's by its drift against the estimate. Whether the odometry's
+        changed (every odometry factor is then reweighted, pending: the graph is to be solved
+        anew)."""
         n = self.config.noise
-        if not n.estimate or pose_index % n.update_every:
-            return
-        corrections = self.context.innovations.corrections()
-        if corrections is None:
-            return
-        self.noise = updated(self.noise, corrections, (n.min_scale, n.max_scale), n.max_step)
-        self.context.innovations.clear()
+        if not self.estimates_noise or pose_index % n.update_every:
+            return False
+        measurement = self.context.innovations.corrections()
+        if measurement is not None:
+            self.noise = updated(self.noise, measurement, (n.min_scale, n.max_scale), n.max_step)
+            self.context.innovations.clear()  # they were whitened with the scales replaced
+        odometry = self._drift_scale(pose_index)
         logger.debug("pose %d: noise scales %s", pose_index, self.noise)
+        # Up only, and only by a clear step (each reweights the whole trajectory): an
+        # understated odometry refuses every loop closure, an overstated one only widens gates
+        # the joint test narrows again.
+        if odometry is None or odometry < n.drift_deadband * self.noise.odometry:
+            return False
+        odometry = min(odometry, n.max_scale)
+        if odometry <= self.noise.odometry:  # at max_scale already
+            return False
+        logger.debug(
+            "pose %d: odometry scale %.3g -> %.3g", pose_index, self.noise.odometry, odometry
+        )
+        self.noise = NoiseScales(odometry, self.noise.measurement)
+        self._reweight_odometry()
+        return True
+
+    def _drift_scale(self, pose_index: int) -> float | None:
+        """The odometry's scale its windows say, with the window ending now."""
+        if self.drift is None or not self.drift.full:
+            return None
+        first, last = X(pose_index - self.config.noise.drift_window), X(pose_index)
+        relative = self.solver.pose(first).between(self.solver.pose(last))
+        joint = self.solver.joint_covariance([first, last])
+        self.drift.observe(relative, joint, self.noise.odometry)
+        return self.drift.scale()
+
+    def _reweight_odometry(self) -> None:
+        """Every odometry factor again with the odometry's current scale. The whole map's
+        uncertainty changes with it: the landmarks' covariance bounds are forgotten."""
+        for k, (handle, odometry) in enumerate(self._odometry):
+            self.solver.remove(handle)
+            covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
+            factor = odometry_factor(X(k), X(k + 1), odometry, covariance)
+            self._odometry[k] = (self.solver.add(factor), odometry)
+        for landmark in self.landmarks.landmarks.values():
+            landmark.covariance_bound = None
 
     def merge(self, pose_index: int) -> list[tuple[int, int]]:
         """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""

@@ -149,10 +149,33 @@ class Isam2Solver:
             raise SolverError(f"{what} failed: {reason}") from exc
         logger.warning("%s: %s; solving the graph again with QR factorisation", what, reason)
 
-    def _solve_again_with_qr(self) -> gtsam.ISAM2Result:
-        """A new iSAM2 with QR factorisation, given every factor in the graph (committed and
-        pending, removals left out) at the linearisation point the old one had."""
+    def _solve_again_with_qr(self, theta: gtsam.Values | None = None) -> gtsam.ISAM2Result:
+        """A new iSAM2 with QR factorisation, given everything (`_rebuild`)."""
+        try:
+            return self._rebuild("QR", theta or self.isam.getLinearizationPoint())
+        except RuntimeError as exc:
+            reason = gtsam_reason(str(exc))
+            raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+
+    def rebuild(self) -> set[int]:
+        """Apply what is pending by solving the whole graph anew, in a fresh iSAM2: after a
+        change to most factors, which an incremental update would order badly (it eliminates
+        the keys of new factors last: with every pose among them, the landmarks' elimination
+        joins all the poses they saw into dense cliques, and every later step pays for it).
+        Returns every variable's key."""
         theta = self.isam.getLinearizationPoint()
+        try:
+            result = self._rebuild(self.factorization, theta)
+        except RuntimeError as exc:
+            self._check_qr_can_help(exc, f"iSAM2 update {self.num_updates}")
+            result = self._solve_again_with_qr(theta)
+        self._clear_pending()
+        self.num_updates += 1
+        return set(result.getMarkedKeys())
+
+    def _rebuild(self, factorization: str, theta: gtsam.Values) -> gtsam.ISAM2Result:
+        """A new iSAM2 (`factorization`), given every factor in the graph (committed and
+        pending, removals left out) at the linearisation point `theta` the old one had."""
         handles = [*self._committed, *self._pending]
         factors = {**self._committed, **self._pending}
         graph = gtsam.NonlinearFactorGraph()
@@ -164,18 +187,14 @@ class Isam2Solver:
         for key in theta.keys():  # noqa: SIM118 - gtsam.Values iterates as a pybind object
             if key not in keys:  # a variable every factor of which was removed
                 values.erase(key)
-        new = gtsam.Values(self._values)  # pending values the failed update did not take
+        new = gtsam.Values(self._values)  # pending values the old iSAM2 did not take
         for key in new.keys():  # noqa: SIM118
             if values.exists(key):
                 new.erase(key)
         values.insert(new)
-        self.factorization = "QR"
-        self.isam = gtsam.ISAM2(self._params("QR"))
-        try:
-            result = self.isam.update(graph, values)
-        except RuntimeError as exc:
-            reason = gtsam_reason(str(exc))
-            raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+        self.factorization = factorization
+        self.isam = gtsam.ISAM2(self._params(factorization))
+        result = self.isam.update(graph, values)
         self._slots = dict(zip(handles, result.getNewFactorsIndices(), strict=True))
         return result
 

@@ -61,31 +61,40 @@ class Refusing:
         return getattr(self._isam, name)
 
 
-def test_an_update_cholesky_refuses_is_solved_again_with_qr():
+def with_next_step_pending() -> tuple[Isam2Solver, Isam2Solver, dict[int, tuple[int, int]]]:
+    """Two solvers with `build`'s graph applied and the same next step pending: the loop
+    removed, a fifth pose; and each one's handles from `build`."""
     config = load_config().isam2
-    plain, flaky = Isam2Solver(config), Isam2Solver(config)
+    first, second = Isam2Solver(config), Isam2Solver(config)
     handles = {}
-    for solver in (plain, flaky):
+    for solver in (first, second):
         handles[id(solver)] = build(solver)
         solver.update()
-    # the same next step for both, with a removal; Cholesky refuses it in `flaky`
-    for solver in (plain, flaky):
         loop, _ = handles[id(solver)]
         solver.remove(loop)
         solver.add(gtsam.BetweenFactorPose3(X(3), X(4), STEP, NOISE))
         solver.insert(X(4), gtsam.Pose3(gtsam.Rot3(), np.array([4.2, 0.0, 0.0])))
-    flaky.isam = Refusing(flaky.isam)
+    return first, second, handles
+
+
+def replace_the_prior(solvers: tuple[Isam2Solver, ...], handles) -> None:
+    """Handles still name the right factors after a rebuild: the landmark's prior replaced."""
+    for solver in solvers:
+        _, prior = handles[id(solver)]
+        solver.remove(prior)
+        solver.add(gtsam.PriorFactorPoint3(L(0), np.array([2.5, 3.0, 0.0]), NOISE_3))
+        solver.update()
+
+
+def test_an_update_cholesky_refuses_is_solved_again_with_qr():
+    plain, flaky, handles = with_next_step_pending()
+    flaky.isam = Refusing(flaky.isam)  # Cholesky refuses the next step in `flaky`
     plain.update()
     flaky.update()
     assert flaky.factorization == "QR" and plain.factorization == "CHOLESKY"
     for key in (X(4), X(1)):
         np.testing.assert_allclose(flaky.pose(key).matrix(), plain.pose(key).matrix(), atol=1e-6)
-    # handles still name the right factors after the rebuild: removing one more works in both
-    for solver in (plain, flaky):
-        _, prior = handles[id(solver)]
-        solver.remove(prior)
-        solver.add(gtsam.PriorFactorPoint3(L(0), np.array([2.5, 3.0, 0.0]), NOISE_3))
-        solver.update()
+    replace_the_prior((plain, flaky), handles)
     np.testing.assert_allclose(flaky.point(L(0)), plain.point(L(0)), atol=1e-6)
 
 
@@ -93,27 +102,15 @@ NOISE_3 = gtsam.noiseModel.Isotropic.Sigma(3, 0.05)
 
 
 def test_a_rebuild_solves_what_an_update_would_and_keeps_the_handles():
-    """Reweighting most factors goes through `rebuild` (a fresh iSAM2): the same estimate as
-    an incremental update of the same changes, every key reported moved, the handles usable."""
-    config = load_config().isam2
-    incremental, rebuilt = Isam2Solver(config), Isam2Solver(config)
-    handles = {}
-    for solver in (incremental, rebuilt):
-        handles[id(solver)] = build(solver)
-        solver.update()
-        loop, _ = handles[id(solver)]
-        solver.remove(loop)
-        solver.add(gtsam.BetweenFactorPose3(X(3), X(4), STEP, NOISE))
-        solver.insert(X(4), gtsam.Pose3(gtsam.Rot3(), np.array([4.2, 0.0, 0.0])))
+    """Reweighting most factors goes through `update(anew=True)` (a fresh iSAM2): the same
+    estimate as an incremental update of the same changes, every key reported moved, the
+    handles usable."""
+    incremental, rebuilt, handles = with_next_step_pending()
     incremental.update()
-    moved = rebuilt.rebuild()
+    moved = rebuilt.update(anew=True)
     assert moved == {X(0), X(1), X(2), X(3), X(4), L(0)} and not rebuilt.has_pending
     assert rebuilt.factorization == "CHOLESKY"
-    for solver in (incremental, rebuilt):
-        _, prior = handles[id(solver)]
-        solver.remove(prior)
-        solver.add(gtsam.PriorFactorPoint3(L(0), np.array([2.5, 3.0, 0.0]), NOISE_3))
-        solver.update()
+    replace_the_prior((incremental, rebuilt), handles)
     for key in (X(4), X(1)):
         np.testing.assert_allclose(
             rebuilt.pose(key).matrix(), incremental.pose(key).matrix(), atol=1e-6

@@ -170,7 +170,7 @@ class Backend:
         if merged:
             switched += self.method.refine(self.context.after_update(self.solver.update()))
         if self._rescale_noise(prediction.pose_index):
-            switched += self.method.refine(self.context.after_update(self.solver.rebuild()))
+            switched += self.method.refine(self.context.after_update(self.solver.update(anew=True)))
         switched = self._changed(switched)
         for record in switched:
             self.context.seen(record)

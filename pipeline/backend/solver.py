@@ -118,23 +118,35 @@ class Isam2Solver:
     def has_pending(self) -> bool:
         return bool(self._pending) or bool(self._removals)
 
-    def update(self) -> set[int]:
+    def update(self, anew: bool = False) -> set[int]:
         """Apply what is pending; returns iSAM2's marked keys (new factors' keys, removed
-        factors' keys and every relinearised variable): the variables whose estimate moved."""
-        graph = gtsam.NonlinearFactorGraph()
-        for factor in self._pending.values():
-            graph.add(factor)
+        factors' keys and every relinearised variable): the variables whose estimate moved.
+
+        `anew`: solve the whole graph again in a fresh iSAM2 instead (every key is marked), for
+        a change to most factors, which an incremental update would order badly: it eliminates
+        the keys of new factors last, and with every pose among them the landmarks' elimination
+        joins all the poses they saw into dense cliques that every later step pays for."""
+        old = self.isam
         try:
-            result = self.isam.update(graph, self._values, self._removals)
+            if anew:
+                result = self._rebuild(self.factorization, old.getLinearizationPoint())
+            else:
+                result = self._incremental()
         except RuntimeError as exc:
             self._check_qr_can_help(exc, f"iSAM2 update {self.num_updates}")
-            result = self._solve_again_with_qr()
-        else:
-            for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
-                self._slots[handle] = slot
+            result = self._solve_again_with_qr(old.getLinearizationPoint())
         self._clear_pending()
         self.num_updates += 1
         return set(result.getMarkedKeys())
+
+    def _incremental(self) -> gtsam.ISAM2Result:
+        graph = gtsam.NonlinearFactorGraph()
+        for factor in self._pending.values():
+            graph.add(factor)
+        result = self.isam.update(graph, self._values, self._removals)
+        for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
+            self._slots[handle] = slot
+        return result
 
     def _clear_pending(self) -> None:
         self._committed.update(self._pending)
@@ -149,29 +161,13 @@ class Isam2Solver:
             raise SolverError(f"{what} failed: {reason}") from exc
         logger.warning("%s: %s; solving the graph again with QR factorisation", what, reason)
 
-    def _solve_again_with_qr(self, theta: gtsam.Values | None = None) -> gtsam.ISAM2Result:
-        """A new iSAM2 with QR factorisation, given everything (`_rebuild`)."""
+    def _solve_again_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
+        """A new iSAM2 with QR factorisation, given everything (`_rebuild`) at `theta`."""
         try:
-            return self._rebuild("QR", theta or self.isam.getLinearizationPoint())
+            return self._rebuild("QR", theta)
         except RuntimeError as exc:
             reason = gtsam_reason(str(exc))
             raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
-
-    def rebuild(self) -> set[int]:
-        """Apply what is pending by solving the whole graph anew, in a fresh iSAM2: after a
-        change to most factors, which an incremental update would order badly (it eliminates
-        the keys of new factors last: with every pose among them, the landmarks' elimination
-        joins all the poses they saw into dense cliques, and every later step pays for it).
-        Returns every variable's key."""
-        theta = self.isam.getLinearizationPoint()
-        try:
-            result = self._rebuild(self.factorization, theta)
-        except RuntimeError as exc:
-            self._check_qr_can_help(exc, f"iSAM2 update {self.num_updates}")
-            result = self._solve_again_with_qr(theta)
-        self._clear_pending()
-        self.num_updates += 1
-        return set(result.getMarkedKeys())
 
     def _rebuild(self, factorization: str, theta: gtsam.Values) -> gtsam.ISAM2Result:
         """A new iSAM2 (`factorization`), given every factor in the graph (committed and
@@ -237,6 +233,6 @@ class Isam2Solver:
             return query()
         except RuntimeError as exc:
             self._check_qr_can_help(exc, f"marginals after iSAM2 update {self.num_updates}")
-            self._solve_again_with_qr()
+            self._solve_again_with_qr(self.isam.getLinearizationPoint())
             self._clear_pending()
             return query()

@@ -38,6 +38,7 @@ class AssociationConfig:
     ambiguity_log_odds: float = setting(at_least(0.0))
     max_search_nodes: int = setting(at_least(1))
     min_loop_pairs: int = setting(at_least(1))
+    crowded_loop_pairs: int = setting(at_least(1))
     joint_marginals: bool
     min_weight: float = setting(between(0.0, 1.0, high_open=True))
     search_sigmas: float = setting(at_least(0.0))

@@ -12,6 +12,7 @@ from pipeline.backend.decisions import (
     MeasurementSpace,
     clutter_log_density,
     first_component,
+    loop_pairs_needed,
     null_cost,
     relative_null_nll,
 )
@@ -75,3 +76,9 @@ def test_gaussian_peak_over_clutter_hand_computed():
     gamma = np.diag([0.02**2, 0.02**2, 0.2**2])
     peak = -gaussian_log_normaliser(gamma)
     assert peak == pytest.approx(-0.5 * (3 * LOG_2PI + math.log(np.linalg.det(gamma))))
+
+
+def test_a_loop_resting_on_the_pattern_needs_more_pairs():
+    assert loop_pairs_needed([0.96, 0.8], alone=2, crowded=3) == 2
+    assert loop_pairs_needed([0.96, 0.1], alone=2, crowded=3) == 3
+    assert loop_pairs_needed([], alone=2, crowded=3) == 2

@@ -25,6 +25,7 @@ from pipeline.backend.decisions import (
     MeasurementSpace,
     clutter_log_density,
     first_component,
+    loop_pairs_needed,
     null_cost,
 )
 from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
@@ -135,15 +136,20 @@ class MaxMixture(MixtureMethod):
                     zip(decision.assignment, decision.unique, strict=True)
                 )
             ]
-            # A loop is closed by two landmarks agreeing, or by a merge later (`merges.py`):
-            # a lone loop-closing pairing is taken out, and the keyframe decided again.
+            # A loop is closed by enough landmarks agreeing (`loop_pairs_needed`), or by a merge
+            # later (`merges.py`): too few loop-closing pairings are taken out, and the
+            # keyframe decided again.
             loops = [
                 i
                 for i, k in enumerate(chosen)
                 if k != NONE
                 and not self.context.seen_lately(int(candidates[i].landmark_ids[k]), pose_index)
             ]
-            if not loops or len(loops) >= a.min_loop_pairs:
+            if not loops or len(loops) >= loop_pairs_needed(
+                [float(candidates[i].weights[chosen[i]]) for i in loops],
+                a.min_loop_pairs,
+                a.crowded_loop_pairs,
+            ):
                 break
             for i in loops:
                 kept[i] = kept[i][kept[i] != chosen[i]]

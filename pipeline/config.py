@@ -137,10 +137,16 @@ def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
     default = settings.config_path("default.toml")
     config = settings.load(Config, default, path)
-    n = config.noise
+    n, a = config.noise, config.association
+    source = path if path is not None else default
     settings.require(
         all(n.min_scale <= x <= n.max_scale for x in (n.odometry_scale, *n.measurement_scale)),
-        path if path is not None else default,
+        source,
         "noise.odometry_scale and measurement_scale must lie within min_scale..max_scale",
+    )
+    settings.require(
+        a.crowded_loop_pairs >= a.min_loop_pairs,
+        source,
+        "association.crowded_loop_pairs must be >= association.min_loop_pairs",
     )
     return config

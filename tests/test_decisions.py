@@ -81,4 +81,7 @@ def test_gaussian_peak_over_clutter_hand_computed():
 def test_a_loop_resting_on_the_pattern_needs_more_pairs():
     assert loop_pairs_needed([0.96, 0.8], alone=2, crowded=3) == 2
     assert loop_pairs_needed([0.96, 0.1], alone=2, crowded=3) == 3
+    # the favourite of three, yet outweighed by the other two together
+    assert loop_pairs_needed([0.96, 0.45], alone=2, crowded=3) == 3
+    assert loop_pairs_needed([0.5, 0.5], alone=2, crowded=3) == 2
     assert loop_pairs_needed([], alone=2, crowded=3) == 2

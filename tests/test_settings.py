@@ -84,6 +84,7 @@ NEW_BACKEND_SETTINGS = {  # the association, mixture, merge and noise keys of ba
     "[association]\njoint_confidence = 1.0": "'association.joint_confidence' must be in (0, 1)",
     "[association]\nambiguity_log_odds = -1.0": "'association.ambiguity_log_odds' must be >= 0",
     "[association]\nmin_loop_pairs = 0": "'association.min_loop_pairs' must be >= 1, got 0",
+    "[association]\nmin_loop_pairs = 4": "association.crowded_loop_pairs must be >= association",
     "[association]\nnull_crossover_sq = 0.0": "'association.null_crossover_sq' must be > 0",
     "[mixture]\nfirst_choice = 'best'": "'mixture.first_choice' must be one of joint, prediction",
     "[merges]\nmin_class_agreement = 1.5": "'merges.min_class_agreement' must be in [0, 1]",

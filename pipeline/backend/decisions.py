@@ -114,9 +114,9 @@ def first_component(
 
 def loop_pairs_needed(marginal_weights: list[float], alone: int, crowded: int) -> int:
     """How many pairings with landmarks not seen lately a keyframe needs to close a loop, given
-    each pairing's weight on its own (its detection's candidates weighed alone): `alone` where
-    each is its detection's favourite, `crowded` where the keyframe's pattern took one that
-    another candidate outweighs alone. Among lookalikes in rows (parked cars), a pattern
+    each pairing's weight on its own (among its detection's candidates weighed alone): `alone`
+    where each holds at least half, `crowded` where the keyframe's pattern took one that its
+    detection's other candidates outweigh. Among lookalikes in rows (parked cars), a pattern
     shifted by one slot explains two detections together better than the truth does when the
     truth holds a landmark not mapped yet (city-grid, true covariance, seed 4: cars 103 and 102
     paired with the mapped 96 and 95, the second at weight 0.10 alone against 0.79 for car

@@ -12,7 +12,14 @@ from pipeline.backend.slam import Backend
 from pipeline.config import MIXTURE_SELECTIONS, load_config
 from pipeline.log import read_log
 from pipeline.replay import keyframes, replay
-from tests.synthetic import KIDNAP_POSE, Scene, kidnap_scene, square_loop, write_scene
+from tests.synthetic import (
+    KIDNAP_POSE,
+    ODOM_SIGMAS,
+    Scene,
+    kidnap_scene,
+    square_loop,
+    write_scene,
+)
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
 
@@ -225,7 +232,7 @@ def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene,
         assert scale == 1.0
     else:
         assert 4.0 <= scale <= 4 * odom_noise**2
-    stated = 1.0 / 0.001**2  # ODOM_SIGMAS[0]: rx
+    stated = 1.0 / ODOM_SIGMAS[0] ** 2  # rx
     information = odometry_information(backend)
     assert len(information) == len(scene.poses) - 1
     np.testing.assert_allclose(information, stated / scale, rtol=1e-9)

@@ -119,11 +119,9 @@ class Backend:
             return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
         step = pose_from_message(odometry.translation, odometry.rotation)
         pose = self.solver.pose(X(index - 1)).compose(step)
-        stated = np.reshape(odometry.covariance, (6, 6))
-        covariance = self.noise.odometry * stated
-        handle = self.solver.add(odometry_factor(X(index - 1), X(index), odometry, covariance))
+        handle, covariance = self._add_odometry(index - 1, odometry)
         if self.drift is not None:
-            self.drift.add_step(step, stated)
+            self.drift.add_step(step, np.reshape(odometry.covariance, (6, 6)))
             self._odometry.append((handle, odometry))
         self.solver.insert(X(index), pose)
         return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
@@ -233,14 +231,18 @@ class Backend:
         self.drift.observe(relative, joint, self.noise.odometry)
         return self.drift.scale()
 
+    def _add_odometry(self, k: int, odometry: Odometry) -> tuple[int, np.ndarray]:
+        """The factor of `odometry` from pose k to k + 1, its stated covariance at the
+        odometry's current scale, added to the solver: (its handle, that covariance)."""
+        covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
+        return self.solver.add(odometry_factor(X(k), X(k + 1), odometry, covariance)), covariance
+
     def _reweight_odometry(self) -> None:
         """Every odometry factor again with the odometry's current scale. The whole map's
         uncertainty changes with it: the landmarks' covariance bounds are forgotten."""
         for k, (handle, odometry) in enumerate(self._odometry):
             self.solver.remove(handle)
-            covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
-            factor = odometry_factor(X(k), X(k + 1), odometry, covariance)
-            self._odometry[k] = (self.solver.add(factor), odometry)
+            self._odometry[k] = (self._add_odometry(k, odometry)[0], odometry)
         for landmark in self.landmarks.landmarks.values():
             landmark.covariance_bound = None
 

@@ -88,6 +88,7 @@ class MergeConfig:
 class NoiseConfig:
     estimate: bool
     odometry_scale: float = setting(POSITIVE)
+    odometry_start_scale: float = setting(POSITIVE)
     measurement_scale: tuple[float, float, float] = setting(POSITIVE)
     update_every: int = setting(at_least(1))
     sample_every: int = setting(at_least(1))
@@ -143,6 +144,11 @@ def load_config(path: str | Path | None = None) -> Config:
         all(n.min_scale <= x <= n.max_scale for x in (n.odometry_scale, *n.measurement_scale)),
         source,
         "noise.odometry_scale and measurement_scale must lie within min_scale..max_scale",
+    )
+    settings.require(
+        n.odometry_start_scale <= n.max_scale,
+        source,
+        "noise.odometry_start_scale must be <= max_scale",
     )
     settings.require(
         a.crowded_loop_pairs >= a.min_loop_pairs,

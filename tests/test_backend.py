@@ -236,3 +236,15 @@ def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene,
     information = odometry_information(backend)
     assert len(information) == len(scene.poses) - 1
     np.testing.assert_allclose(information, stated / scale, rtol=1e-9)
+
+
+def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square_scene):
+    """Estimation started well above the log's (right) odometry noise: the windows bring the
+    scale down, not below the log's own statement, and every odometry factor follows."""
+    scene = dataclasses.replace(square_scene, poses=square_loop(20.0, 1.0, laps=3.0))
+    log = write_scene(tmp_path / "drift.mcap", scene, seed=2, odom_noise=1.0)
+    backend = run_backend(log, "mm-nh", drift_config(odometry_start_scale=16.0))
+    scale = backend.noise.odometry
+    assert 1.0 <= scale <= 16.0 / 3.0
+    stated = 1.0 / ODOM_SIGMAS[0] ** 2  # rx
+    np.testing.assert_allclose(odometry_information(backend), stated / scale, rtol=1e-9)

@@ -9,8 +9,10 @@ from pipeline.backend.noise import (
     OdometryDrift,
     ScaleEstimator,
     composed_odometry,
+    drift_corrections,
     drift_moments,
     measurement_corrections,
+    odometry_scale_move,
     relative_covariance,
     updated,
 )
@@ -171,9 +173,11 @@ def test_drift_finds_the_odometry_scale_against_a_known_relative_pose(true_scale
             relative = relative * step
         drift.observe(relative, np.zeros((12, 12)), 1.0)
         if window < 3:
-            assert drift.scale() is None
+            assert drift.readings() is None
+    median, pooled = drift.readings()
     # the median of chi-square(6) / 6 is 0.89: the windows' median reads a little low
-    assert drift.scale() == pytest.approx(0.89 * true_scale, rel=0.2)
+    assert median == pytest.approx(0.89 * true_scale, rel=0.2)
+    assert pooled == pytest.approx(true_scale, rel=0.1)
 
 
 def test_drift_says_nothing_where_the_landmarks_decide_nothing():
@@ -186,4 +190,60 @@ def test_drift_says_nothing_where_the_landmarks_decide_nothing():
     joint = np.zeros((12, 12))
     joint[6:, 6:] = Q
     drift.observe(step * step, joint, 1.0)
-    assert drift.scale() is None
+    assert drift.readings() is None
+
+
+def test_drift_corrections_by_hand():
+    # corrections 1 + (nis - decided) / reach: 1 + 2 / 1 = 3, 1 + 0 / 0.5 = 1, 1 - 3 / 2 = -0.5;
+    # the window reaching 0.1 < MIN_REACH is left out
+    moments = np.array([[5.0, 3.0, 1.0], [2.0, 2.0, 0.5], [1.0, 4.0, 2.0], [90.0, 0.0, 0.1]])
+    median, pooled = drift_corrections(moments, min_windows=3)
+    assert median == pytest.approx(1.0)
+    assert pooled == pytest.approx(1.0 + (2.0 + 0.0 - 3.0) / 3.5)
+    assert drift_corrections(moments, min_windows=4) is None
+    # a correction below zero reads as zero
+    assert drift_corrections(np.array([[0.0, 6.0, 1.0]]), 1) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("true_scale", [0.25, 4.0])
+def test_pooled_reading_is_unbiased_where_windows_reach_little(true_scale):
+    """Landmarks that pin the window's relative pose only loosely (L = 2.5 Q: a fifth of the
+    odometry's error per degree of freedom shows): the pooled moment comes back, the windows'
+    median correction reads low, far low where the odometry's noise is overstated."""
+    rng = np.random.default_rng(3)
+    Q = np.diag([1e-4, 1e-4, 4e-4, 1e-2, 1e-2, 1e-3])
+    C = np.linalg.inv(np.linalg.inv(Q) + np.linalg.inv(2.5 * Q))
+    G = np.eye(6) - C @ np.linalg.inv(Q)
+    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=20000)
+    z_l = rng.multivariate_normal(np.zeros(6), 2.5 * Q, size=20000)
+    moments = np.array([drift_moments(G @ d, Q, C) for d in z_o - z_l])
+    assert moments[0, 2] == pytest.approx(6 / 3.5**2)  # G = I / 3.5
+    median, pooled = drift_corrections(moments, min_windows=1)
+    assert pooled == pytest.approx(true_scale, rel=0.05)
+    # an overstated odometry: the median of the skewed corrections reads zero
+    assert median < (0.5 if true_scale < 1 else 0.9) * true_scale
+
+
+@pytest.mark.parametrize(
+    ("median", "pooled", "expected"),
+    [
+        (12.0, 12.0, 12.0),  # up, to the median: 12 >= 3 x 4
+        (11.0, 30.0, None),  # the median short of the deadband: a bent window alone says up
+        (500.0, 500.0, 100.0),  # up, to the ceiling
+        (1.2, 1.3, 1.3),  # down, to the pooled moment: 1.3 <= 4 / 3
+        (0.1, 1.5, None),  # the median alone says down: it reads low
+        (0.1, 0.2, 1.0),  # down, to the floor
+    ],
+)
+def test_odometry_scale_moves_by_clear_steps_within_bounds(median, pooled, expected):
+    assert odometry_scale_move(4.0, median, pooled, 3.0, (1.0, 100.0)) == expected
+
+
+def test_odometry_scale_comes_down_only_when_allowed():
+    assert odometry_scale_move(4.0, 1.2, 1.3, 3.0, (1.0, 100.0), down=False) is None
+    assert odometry_scale_move(4.0, 12.0, 12.0, 3.0, (1.0, 100.0), down=False) == 12.0
+
+
+def test_odometry_scale_stays_at_a_bound_it_holds():
+    assert odometry_scale_move(1.0, 0.1, 0.1, 3.0, (1.0, 100.0)) is None
+    assert odometry_scale_move(100.0, 900.0, 900.0, 3.0, (1.0, 100.0)) is None

@@ -98,6 +98,7 @@ NEW_BACKEND_SETTINGS = {  # the association, mixture, merge and noise keys of ba
     "[noise]\nmeasurement_scale = [1.0, -1.0, 1.0]": "'noise.measurement_scale[1]' must be > 0",
     "[noise]\nwindow = 0": "'noise.window' must be >= 1, got 0",
     "[noise]\nodometry_scale = 500.0": "noise.odometry_scale and measurement_scale must lie",
+    "[noise]\nodometry_start_scale = 500.0": "noise.odometry_start_scale must be <= max_scale",
 }
 
 

@@ -14,10 +14,10 @@ first order) and the estimate's relative pose T between the window's ends (covar
 iSAM2) differ by delta = Log(U^-1 T). Taking the window's odometry and the rest of the graph
 as two measurements of T, delta = G (z_odometry - z_rest) with G = I - C Q^-1, and if the
 odometry's true covariance is c Q, E[delta^T Q^-1 delta] = (6 - tr(Q^-1 C)) + (c - 1) r with
-r = tr(Q^-1 G Q G^T): so c = 1 + (nis - (6 - tr(Q^-1 C))) / r, a window's correction (the
-median over windows is taken). A window the landmarks do not pin (C near Q) has r near 0 and
-says little; the plain ratio nis / (6 - tr(Q^-1 C)) would read low wherever the estimate
-still leans on a stiff odometry.
+r = tr(Q^-1 G Q G^T): so c = 1 + (nis - (6 - tr(Q^-1 C))) / r, a window's correction (over
+windows, their median moves the scale up and their pooled moment down: `drift_corrections`).
+A window the landmarks do not pin (C near Q) has r near 0 and says little; the plain ratio
+nis / (6 - tr(Q^-1 C)) would read low wherever the estimate still leans on a stiff odometry.
 A slow odometry bias drifts more over a long window than white noise of the same step sigma:
 the scale found is the one at the window's length.
 
@@ -172,20 +172,56 @@ class OdometryDrift:
         C = relative_covariance(relative, joint)
         self._moments.append(drift_moments(delta, scale * stated, C))
 
-    def scale(self) -> float | None:
-        """The scale the windows say: the current times the median of their corrections
-        1 + (nis - decided) / reach, over the windows that reach at least MIN_REACH degrees of
-        freedom of the odometry's error; None while fewer than `min_windows` do. The median,
-        not the pooled moment: one window across a loop closure that bent the map (or a wrong
-        one) outweighs all the others in the pool (kitti05-cars, noise x5 with its true
-        covariance stated, seed 9: pooled 3.15, the windows' median 1.2)."""
+    def readings(self) -> tuple[float, float] | None:
+        """The scale the windows say, (median, pooled) as `drift_corrections` reads them,
+        times the current scale; None while fewer than `min_windows` windows reach."""
         if self._scale is None:
             return None
-        moments = np.array(self._moments).reshape(-1, 3)
-        nis, decided, reach = moments[moments[:, 2] >= MIN_REACH].T
-        if len(reach) < self.min_windows:
+        corrections = drift_corrections(np.array(self._moments).reshape(-1, 3), self.min_windows)
+        if corrections is None:
             return None
-        return self._scale * max(float(np.median(1.0 + (nis - decided) / reach)), 0.0)
+        return self._scale * corrections[0], self._scale * corrections[1]
+
+
+def drift_corrections(moments: np.ndarray, min_windows: int) -> tuple[float, float] | None:
+    """Windows' (nis, decided, reach) rows to the odometry scale's correction, two ways:
+    (median, pooled) of 1 + (nis - decided) / reach, over the windows that reach at least
+    MIN_REACH degrees of freedom of the odometry's error; None while fewer than `min_windows`
+    do. The median of the windows' corrections ignores a window across a loop closure that
+    bent the map (or a wrong one), which outweighs all the others in the pool (kitti05-cars,
+    noise x5 with its true covariance stated, seed 9: pooled 3.15, median 1.2). The pooled
+    moment, 1 + sum(nis - decided) / sum(reach), is unbiased, where the median of these
+    right-skewed corrections reads low, the more so the less the windows reach."""
+    nis, decided, reach = moments[moments[:, 2] >= MIN_REACH].T
+    if len(reach) < min_windows:
+        return None
+    median = max(float(np.median(1.0 + (nis - decided) / reach)), 0.0)
+    pooled = max(1.0 + float(np.sum(nis - decided) / np.sum(reach)), 0.0)
+    return median, pooled
+
+
+def odometry_scale_move(
+    current: float,
+    median: float,
+    pooled: float,
+    deadband: float,
+    bounds: tuple[float, float],
+    down: bool = True,
+) -> float | None:
+    """The odometry's new scale from its windows' readings (`OdometryDrift.readings`), or None
+    to keep `current`. Only clear steps (each reweights the whole trajectory): up to the median
+    when that reaches `deadband` times the current scale, down (if `down`) to the pooled moment
+    when that is at most the current over `deadband`, within `bounds`. Each way with the
+    reading that errs towards keeping the scale: a window bent by a loop closure pulls the
+    pooled moment up, and the median reads low."""
+    low, high = bounds
+    if median >= deadband * current:
+        new = min(median, high)
+    elif down and pooled * deadband <= current:
+        new = max(pooled, low)
+    else:
+        return None
+    return new if new != current else None
 
 
 def updated(

@@ -219,32 +219,39 @@ def odometry_information(backend: Backend) -> list[float]:
     return out
 
 
+def three_laps(tmp_path, square_scene, odom_noise: float):
+    """Three laps of the square, its odometry erring odom_noise times the stated sigmas."""
+    scene = dataclasses.replace(square_scene, poses=square_loop(20.0, 1.0, laps=3.0))
+    return write_scene(tmp_path / "drift.mcap", scene, seed=2, odom_noise=odom_noise)
+
+
+def assert_every_odometry_factor_at(backend: Backend, scale: float) -> None:
+    """One odometry factor per step in iSAM2, each with the stated covariance times `scale`."""
+    information = odometry_information(backend)
+    assert len(information) == backend.num_poses - 1
+    stated = 1.0 / ODOM_SIGMAS[0] ** 2  # rx
+    np.testing.assert_allclose(information, stated / scale, rtol=1e-9)
+
+
 @pytest.mark.parametrize("odom_noise", [1.0, 4.0])
 def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene, odom_noise):
     """The log states the odometry's covariance; its steps err odom_noise times more (in
     sigma). mm-nh raises the odometry's scale where it is understated, never where it is
     right, and every odometry factor of the graph then carries the new scale."""
-    scene = dataclasses.replace(square_scene, poses=square_loop(20.0, 1.0, laps=3.0))
-    log = write_scene(tmp_path / "drift.mcap", scene, seed=2, odom_noise=odom_noise)
-    backend = run_backend(log, "mm-nh", drift_config())
+    backend = run_backend(three_laps(tmp_path, square_scene, odom_noise), "mm-nh", drift_config())
     scale = backend.noise.odometry
     if odom_noise == 1.0:
         assert scale == 1.0
     else:
         assert 4.0 <= scale <= 4 * odom_noise**2
-    stated = 1.0 / ODOM_SIGMAS[0] ** 2  # rx
-    information = odometry_information(backend)
-    assert len(information) == len(scene.poses) - 1
-    np.testing.assert_allclose(information, stated / scale, rtol=1e-9)
+    assert_every_odometry_factor_at(backend, scale)
 
 
 def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square_scene):
     """Estimation started well above the log's (right) odometry noise: the windows bring the
     scale down, not below the log's own statement, and every odometry factor follows."""
-    scene = dataclasses.replace(square_scene, poses=square_loop(20.0, 1.0, laps=3.0))
-    log = write_scene(tmp_path / "drift.mcap", scene, seed=2, odom_noise=1.0)
+    log = three_laps(tmp_path, square_scene, odom_noise=1.0)
     backend = run_backend(log, "mm-nh", drift_config(odometry_start_scale=16.0))
     scale = backend.noise.odometry
     assert 1.0 <= scale <= 16.0 / 3.0
-    stated = 1.0 / ODOM_SIGMAS[0] ** 2  # rx
-    np.testing.assert_allclose(odometry_information(backend), stated / scale, rtol=1e-9)
+    assert_every_odometry_factor_at(backend, scale)

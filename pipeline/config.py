@@ -101,6 +101,7 @@ class NoiseConfig:
     drift_windows: int = setting(at_least(1))
     min_drift_windows: int = setting(at_least(1))
     drift_deadband: float = setting(at_least(1.0))
+    drift_evidence: float = setting(at_least(0.0))
 
 
 @dataclass(frozen=True)

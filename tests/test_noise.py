@@ -1,19 +1,22 @@
-"""Noise scales from innovations: moments by hand, and recovery of known misstatements."""
+"""Noise scales from innovations and drift windows: by hand, and recovery of misstatements."""
 
 import gtsam
 import numpy as np
 import pytest
 
 from pipeline.backend.noise import (
+    SETTLING_VARIANCE,
     NoiseScales,
     OdometryDrift,
     ScaleEstimator,
     composed_odometry,
-    drift_corrections,
-    drift_moments,
+    drift_log_likelihood,
+    drift_scale,
+    drift_spectrum,
     measurement_corrections,
     odometry_scale_move,
     relative_covariance,
+    settled,
     updated,
 )
 
@@ -126,33 +129,68 @@ def test_relative_covariance_matches_numerical_jacobians():
     np.testing.assert_allclose(relative_covariance(relative, joint), J @ joint @ J.T, atol=1e-9)
 
 
-def test_drift_moments_by_hand():
-    # Q = 2 I, C = diag(1, 1, 0, 0, 0, 0): nis = (4 + 1) / 2, decided = 6 - (1 + 1) / 2,
-    # G = diag(0.5, 0.5, 1, 1, 1, 1): reach = tr(G G^T) = 0.25 + 0.25 + 4
+def test_drift_spectrum_by_hand():
+    # Q = 2 I, C = diag(1, 1, 0, 0, 0, 0): whitened, C is diag(0.5, 0.5, 0, ...), so the rest of
+    # the graph decides half of the first two directions and all of the others; the
+    # discrepancy whitened is delta / sqrt(2)
     delta = np.array([2.0, 1.0, 0, 0, 0, 0])
     C = np.diag([1.0, 1.0, 0, 0, 0, 0])
-    assert drift_moments(delta, 2 * np.eye(6), C) == pytest.approx((2.5, 5.0, 4.5))
-    # nothing decided: the estimate is the odometry's, and none of its error shows
-    assert drift_moments(delta, np.eye(6), np.eye(6))[1:] == pytest.approx((0.0, 0.0))
+    shares, components = drift_spectrum(delta, 2 * np.eye(6), C)
+    np.testing.assert_allclose(shares, [0.5, 0.5, 1, 1, 1, 1])
+    assert sorted(components[:2] ** 2) == pytest.approx([0.5, 2.0])
+    np.testing.assert_allclose(components[2:], 0, atol=1e-12)
 
 
-@pytest.mark.parametrize("true_scale", [1.0, 6.0])
-def test_drift_moments_are_unbiased_where_landmarks_pin_the_pose_only_partly(true_scale):
-    """The window's odometry z_o (true covariance true_scale Q) and the rest of the graph z_l
-    (covariance L) fused as the back-end would with Q: E[nis] - decided = (c - 1) reach."""
+def test_drift_log_likelihood_by_hand():
+    # shares 0.5, 1, 0 with components 1, 2, 0.1: variances 0.25 + 0.25 c, c and nothing
+    # but the settling variance s
+    shares = np.array([[0.5, 1.0, 0.0]])
+    components = np.array([[1.0, 2.0, 0.1]])
+    s = SETTLING_VARIANCE
+    for c in (1.0, 4.0):
+        v = np.array([0.25 + 0.25 * c + s, c + s, s])
+        expected = -0.5 * np.sum(np.log(v) + components[0] ** 2 / v)
+        assert drift_log_likelihood(np.array([c]), shares, components)[0] == pytest.approx(expected)
+
+
+def fused_windows(Q, L, true_scale, n, rng):
+    """n windows whose odometry (true covariance true_scale Q) and rest of the graph
+    (covariance L) are fused as the back-end would with Q: (shares, components) stacked."""
+    C = np.linalg.inv(np.linalg.inv(Q) + np.linalg.inv(L))  # the estimate's covariance
+    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=n)
+    z_l = rng.multivariate_normal(np.zeros(6), L, size=n)
+    fused = (C @ (np.linalg.solve(Q, z_o.T) + np.linalg.solve(L, z_l.T))).T
+    windows = [drift_spectrum(d, Q, C) for d in z_o - fused]
+    return np.stack([w[0] for w in windows]), np.stack([w[1] for w in windows])
+
+
+@pytest.mark.parametrize("true_scale", [0.25, 1.0, 6.0])
+def test_drift_scale_comes_back_where_landmarks_pin_the_pose_only_partly(true_scale):
     rng = np.random.default_rng(11)
     A, B = rng.normal(size=(6, 6)), rng.normal(size=(6, 6))
     Q, L = A @ A.T + 0.1 * np.eye(6), 3.0 * (B @ B.T) + 0.1 * np.eye(6)
-    C = np.linalg.inv(np.linalg.inv(Q) + np.linalg.inv(L))  # the estimate's covariance
-    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=20000)
-    z_l = rng.multivariate_normal(np.zeros(6), L, size=20000)
-    fused = (C @ (np.linalg.solve(Q, z_o.T) + np.linalg.solve(L, z_l.T))).T
-    moments = np.array([drift_moments(d, Q, C) for d in z_o - fused])
-    nis, decided, reach = moments.sum(axis=0)
-    assert 1.0 + (nis - decided) / reach == pytest.approx(true_scale, rel=0.05)
-    # the plain ratio nis / decided reads low where the landmarks see the pose only partly
-    if true_scale > 1:
-        assert nis / decided < 0.9 * true_scale
+    shares, components = fused_windows(Q, L, true_scale, 2000, rng)
+    scale, evidence = drift_scale(shares, components, (0.01, 100.0))
+    assert scale == pytest.approx(true_scale, rel=0.1)
+    if true_scale == 1.0:
+        assert evidence < 3.0
+    else:
+        assert evidence > 20.0
+
+
+@pytest.mark.parametrize("true_scale", [0.25, 4.0])
+def test_drift_scale_comes_back_where_windows_reach_little(true_scale):
+    """Landmarks that pin the window's relative pose only loosely (L = 2.5 Q: the rest of
+    the graph decides 2/7 of each direction): few windows, each of which says little, but
+    together the scale."""
+    rng = np.random.default_rng(3)
+    Q = np.diag([1e-4, 1e-4, 4e-4, 1e-2, 1e-2, 1e-3])
+    shares, components = fused_windows(Q, 2.5 * Q, true_scale, 400, rng)
+    np.testing.assert_allclose(shares, 1 - 1 / 1.4)
+    scale, _ = drift_scale(shares, components, (0.01, 100.0))
+    assert scale == pytest.approx(true_scale, rel=0.2)
+    # the scale is sought within its bounds only
+    assert drift_scale(shares, components, (0.5, 2.0))[0] == (0.5 if true_scale < 1 else 2.0)
 
 
 @pytest.mark.parametrize("true_scale", [1.0, 9.0])
@@ -173,11 +211,11 @@ def test_drift_finds_the_odometry_scale_against_a_known_relative_pose(true_scale
             relative = relative * step
         drift.observe(relative, np.zeros((12, 12)), 1.0)
         if window < 3:
-            assert drift.readings() is None
-    median, pooled = drift.readings()
-    # the median of chi-square(6) / 6 is 0.89: the windows' median reads a little low
-    assert median == pytest.approx(0.89 * true_scale, rel=0.2)
-    assert pooled == pytest.approx(true_scale, rel=0.1)
+            assert drift.reading((0.01, 100.0)) is None
+    scale, _ = drift.reading((0.01, 100.0))
+    assert scale == pytest.approx(true_scale, rel=0.1)
+    # the windows were taken at scale 1; at another, the reading is the same scale
+    assert drift.reading((1.0, 4.0))[0] == pytest.approx(min(true_scale, 4.0), rel=0.1)
 
 
 def test_drift_says_nothing_where_the_landmarks_decide_nothing():
@@ -190,60 +228,46 @@ def test_drift_says_nothing_where_the_landmarks_decide_nothing():
     joint = np.zeros((12, 12))
     joint[6:, 6:] = Q
     drift.observe(step * step, joint, 1.0)
-    assert drift.readings() is None
+    assert drift.reading((0.01, 100.0))[1] == pytest.approx(0.0, abs=1e-9)
 
 
-def test_drift_corrections_by_hand():
-    # corrections 1 + (nis - decided) / reach: 1 + 2 / 1 = 3, 1 + 0 / 0.5 = 1, 1 - 3 / 2 = -0.5;
-    # the window reaching 0.1 < MIN_REACH is left out
-    moments = np.array([[5.0, 3.0, 1.0], [2.0, 2.0, 0.5], [1.0, 4.0, 2.0], [90.0, 0.0, 0.1]])
-    median, pooled = drift_corrections(moments, min_windows=3)
-    assert median == pytest.approx(1.0)
-    assert pooled == pytest.approx(1.0 + (2.0 + 0.0 - 3.0) / 3.5)
-    assert drift_corrections(moments, min_windows=4) is None
-    # a correction below zero reads as zero
-    assert drift_corrections(np.array([[0.0, 6.0, 1.0]]), 1) == (0.0, 0.0)
+def test_a_window_is_settled_unless_the_odometry_alone_is_off():
+    shares = np.array([0.0, 0.01, 0.04, 0.3, 0.9, 1.0])
+    # large where the landmarks decide: the scale's business
+    assert settled(shares, np.array([0.4, -0.45, 0.3, 5.0, -8.0, 3.0]))
+    # off by more than half a sigma where only the odometry decides: not the model's
+    assert not settled(shares, np.array([0.0, 0.0, -0.6, 0.0, 0.0, 0.0]))
 
 
-@pytest.mark.parametrize("true_scale", [0.25, 4.0])
-def test_pooled_reading_is_unbiased_where_windows_reach_little(true_scale):
-    """Landmarks that pin the window's relative pose only loosely (L = 2.5 Q: a fifth of the
-    odometry's error per degree of freedom shows): the pooled moment comes back, the windows'
-    median correction reads low, far low where the odometry's noise is overstated."""
-    rng = np.random.default_rng(3)
-    Q = np.diag([1e-4, 1e-4, 4e-4, 1e-2, 1e-2, 1e-3])
-    C = np.linalg.inv(np.linalg.inv(Q) + np.linalg.inv(2.5 * Q))
-    G = np.eye(6) - C @ np.linalg.inv(Q)
-    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=20000)
-    z_l = rng.multivariate_normal(np.zeros(6), 2.5 * Q, size=20000)
-    moments = np.array([drift_moments(G @ d, Q, C) for d in z_o - z_l])
-    assert moments[0, 2] == pytest.approx(6 / 3.5**2)  # G = I / 3.5
-    median, pooled = drift_corrections(moments, min_windows=1)
-    assert pooled == pytest.approx(true_scale, rel=0.05)
-    # an overstated odometry: the median of the skewed corrections reads zero
-    assert median < (0.5 if true_scale < 1 else 0.9) * true_scale
+def test_drift_leaves_out_a_window_bent_where_the_odometry_alone_decides():
+    drift = OdometryDrift(length=1, kept=10, min_windows=1)
+    step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0, 0]))
+    drift.add_step(step, np.eye(6))
+    # the landmarks decide nothing (C = Q), yet the estimate is a sigma away from the odometry
+    joint = np.zeros((12, 12))
+    joint[6:, 6:] = np.eye(6)
+    bent = step * gtsam.Pose3(gtsam.Rot3(), np.array([0, 1.0, 0]))
+    drift.observe(bent, joint, 1.0)
+    assert drift.reading((0.01, 100.0)) is None
+    drift.observe(step, joint, 1.0)
+    assert drift.reading((0.01, 100.0)) is not None
 
 
 @pytest.mark.parametrize(
-    ("median", "pooled", "expected"),
+    ("reading", "evidence", "expected"),
     [
-        (12.0, 12.0, 12.0),  # up, to the median: 12 >= 3 x 4
-        (11.0, 30.0, None),  # the median short of the deadband: a bent window alone says up
-        (500.0, 500.0, 100.0),  # up, to the ceiling
-        (1.2, 1.3, 1.3),  # down, to the pooled moment: 1.3 <= 4 / 3
-        (0.1, 1.5, None),  # the median alone says down: it reads low
-        (0.1, 0.2, 1.0),  # down, to the floor
+        (12.0, 5.0, 12.0),  # up: 12 >= 3 x 4
+        (12.0, 2.0, None),  # the windows are not sure enough
+        (11.0, 50.0, None),  # short of the deadband
+        (1.3, 5.0, 1.3),  # down: 1.3 <= 4 / 3
+        (1.5, 50.0, None),
+        (4.0, 50.0, None),  # the scale it has
     ],
 )
-def test_odometry_scale_moves_by_clear_steps_within_bounds(median, pooled, expected):
-    assert odometry_scale_move(4.0, median, pooled, 3.0, (1.0, 100.0)) == expected
+def test_odometry_scale_moves_by_clear_steps_on_evidence(reading, evidence, expected):
+    assert odometry_scale_move(4.0, reading, evidence, 3.0, 3.0) == expected
 
 
 def test_odometry_scale_comes_down_only_when_allowed():
-    assert odometry_scale_move(4.0, 1.2, 1.3, 3.0, (1.0, 100.0), down=False) is None
-    assert odometry_scale_move(4.0, 12.0, 12.0, 3.0, (1.0, 100.0), down=False) == 12.0
-
-
-def test_odometry_scale_stays_at_a_bound_it_holds():
-    assert odometry_scale_move(1.0, 0.1, 0.1, 3.0, (1.0, 100.0)) is None
-    assert odometry_scale_move(100.0, 900.0, 900.0, 3.0, (1.0, 100.0)) is None
+    assert odometry_scale_move(4.0, 1.2, 9.0, 3.0, 3.0, down=False) is None
+    assert odometry_scale_move(4.0, 12.0, 9.0, 3.0, 3.0, down=False) == 12.0

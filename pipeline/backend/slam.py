@@ -208,18 +208,18 @@ class Backend:
         if measurement is not None:
             self.noise = updated(self.noise, measurement, (n.min_scale, n.max_scale), n.max_step)
             self.context.innovations.clear()  # they were whitened with the scales replaced
-        readings = self._drift_readings(pose_index)
+        reading = self._drift_reading(pose_index)
         logger.debug("pose %d: noise scales %s", pose_index, self.noise)
-        if readings is None:
+        if reading is None:
             return False
         # Down only to undo a start set above the floor (odometry_scale): once the windows
         # have raised the scale, a map bent by the loops it let close reads unevenly, and
         # coming down again made kitti05-cars (noise x3, calibrated, seed 5) 10.4 -> 16.6 m.
         odometry = odometry_scale_move(
             self.noise.odometry,
-            *readings,
+            *reading,
             n.drift_deadband,
-            (n.odometry_scale, n.max_scale),
+            n.drift_evidence,
             down=not self._odometry_rose,
         )
         if odometry is None:
@@ -232,15 +232,17 @@ class Backend:
         self._reweight_odometry()
         return True
 
-    def _drift_readings(self, pose_index: int) -> tuple[float, float] | None:
-        """The odometry's scale its windows say (median, pooled), with the window ending now."""
+    def _drift_reading(self, pose_index: int) -> tuple[float, float] | None:
+        """The odometry's scale its windows say and their evidence, with the window ending
+        now."""
         if self.drift is None or not self.drift.full:
             return None
         first, last = X(pose_index - self.config.noise.drift_window), X(pose_index)
         relative = self.solver.pose(first).between(self.solver.pose(last))
         joint = self.solver.joint_covariance([first, last])
         self.drift.observe(relative, joint, self.noise.odometry)
-        return self.drift.readings()
+        n = self.config.noise
+        return self.drift.reading((n.odometry_scale, n.max_scale))
 
     def _add_odometry(self, k: int, odometry: Odometry) -> tuple[int, np.ndarray]:
         """The factor of `odometry` from pose k to k + 1, its stated covariance at the

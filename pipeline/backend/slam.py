@@ -237,11 +237,11 @@ class Backend:
         now."""
         if self.drift is None or not self.drift.full:
             return None
-        first, last = X(pose_index - self.config.noise.drift_window), X(pose_index)
+        n = self.config.noise
+        first, last = X(pose_index - n.drift_window), X(pose_index)
         relative = self.solver.pose(first).between(self.solver.pose(last))
         joint = self.solver.joint_covariance([first, last])
         self.drift.observe(relative, joint, self.noise.odometry)
-        n = self.config.noise
         return self.drift.reading((n.odometry_scale, n.max_scale))
 
     def _add_odometry(self, k: int, odometry: Odometry) -> tuple[int, np.ndarray]:

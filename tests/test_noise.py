@@ -189,8 +189,10 @@ def test_drift_scale_comes_back_where_windows_reach_little(true_scale):
     np.testing.assert_allclose(shares, 1 - 1 / 1.4)
     scale, _ = drift_scale(shares, components, (0.01, 100.0))
     assert scale == pytest.approx(true_scale, rel=0.2)
-    # the scale is sought within its bounds only
+    # the scale is sought within its bounds only, also where they leave out the windows' own
     assert drift_scale(shares, components, (0.5, 2.0))[0] == (0.5 if true_scale < 1 else 2.0)
+    outside = (0.1, 0.5) if true_scale > 1 else (2.0, 10.0)
+    assert drift_scale(shares, components, outside)[0] == outside[true_scale > 1]
 
 
 @pytest.mark.parametrize("true_scale", [1.0, 9.0])

@@ -172,10 +172,12 @@ def drift_scale(
     """The scale within `bounds` (relative to the windows' own) under which the windows are
     most likely, and its evidence: the log-likelihood ratio of that scale against theirs."""
     low, high = bounds
-    scales = np.exp(np.arange(np.log(low), np.log(high), np.log(SCALE_STEP)))
-    scales = np.append(scales, [high, 1.0])
-    likelihood = drift_log_likelihood(scales, shares, components)
-    best = int(np.argmax(likelihood))
+    scales = np.append(np.exp(np.arange(np.log(low), np.log(high), np.log(SCALE_STEP))), high)
+    # the windows' own scale last: the reference, a candidate only if within the bounds
+    likelihood = drift_log_likelihood(np.append(scales, 1.0), shares, components)
+    if low <= 1.0 <= high:
+        scales = np.append(scales, 1.0)
+    best = int(np.argmax(likelihood[: len(scales)]))
     return float(scales[best]), float(likelihood[best] - likelihood[-1])
 
 

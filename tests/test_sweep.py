@@ -219,7 +219,7 @@ def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_swe
     assert all(r.one_to_one_wrong is not None for r in rows.values() if r is not old)
     section = (out / "tables.md").read_text().split("### `noise0-mis0.1`")[1].split("###")[0]
     ml = next(line for line in section.splitlines() if line.startswith("| ML | 1 |"))
-    assert ml.split(" | ")[6:9] == ["-", "-", "-"]  # wrong, missed, landmarks per true one
+    assert ml.split(" | ")[7:10] == ["-", "-", "-"]  # wrong, missed, landmarks per true one
 
 
 def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, tmp_path, capsys):

@@ -21,6 +21,7 @@ from data_tools.sweep.results import (
 from data_tools.sweep.stats import (
     comparisons,
     headlines,
+    near_reference,
     representative_seed,
     rows_of_cell,
     seed_summaries,
@@ -125,6 +126,9 @@ def test_seed_summaries_by_hand():
     assert ml.estimates["one_to_one_wrong"] is None  # no run recorded it
     assert mm_nh.runs == 2 and mm_nh.worst_translation_rmse == 3.5
     assert known.runtime_s == 1.5
+    # Known DA 1, 2, 3 allow 2.0, 3.5, 5.0: MM + NH's 2.5 is not near, its 3.5 just is; ML's
+    # 7, 11, 13 none.
+    assert (mm_nh.near_reference, ml.near_reference, known.near_reference) == ((1, 2), (0, 3), None)
     compared = dict(comparisons(base, HAND_CONFIG.methods))
     # MM + NH 2.5, 3.5 against ML 7, 11 (seed 2 has no MM + NH run) and Known 1, 2.
     assert (compared["ml"].pairs, compared["ml"].wins, compared["ml"].losses) == (2, 2, 0)
@@ -132,6 +136,15 @@ def test_seed_summaries_by_hand():
     assert compared["ml"].wilcoxon_p == pytest.approx(0.5)
     assert (compared["known"].wins, compared["known"].losses) == (0, 2)
     assert comparisons([r for r in base if r.method != "mm-nh"], HAND_CONFIG.methods) == []
+
+
+def test_near_reference_counts_the_seeds_both_have():
+    ours = {("a", 0): 2.0, ("a", 1): 2.01, ("a", 2): 9.0, ("b", 0): 0.4}
+    reference = {("a", 0): 1.0, ("a", 1): 1.0, ("b", 0): 0.0, ("c", 0): 1.0}
+    # 1.5 * 1 + 0.5 = 2: 2.0 near, 2.01 not; 0.4 within the 0.5 m margin of 0; ("a", 2) and
+    # ("c", 0) are not shared
+    assert near_reference(ours, reference) == (2, 3)
+    assert near_reference(ours, {("d", 0): 1.0}) is None
 
 
 def with_one_to_one(row: ResultRow, wrong: int, missed: int, per_true: float) -> ResultRow:
@@ -148,10 +161,11 @@ def test_cell_tables_and_summary_lines_by_hand():
     tables = render_tables(HAND_CONFIG, rows)
     section = tables[tables.index("### `noise1-mis0.1`") :]
     assert (
-        "| ML | 3 | 10.33 [7.00, 13.00] | 11.00 | 13.00 | 0.2200 [0.1200, 0.3200] "
+        "| ML | 3 | 10.33 [7.00, 13.00] | 11.00 | 13.00 | 0 / 3 | 0.2200 [0.1200, 0.3200] "
         "| 4.0 [4.0, 4.0] | 1.0 | 1.50 | 0.0 [0.0, 0.0] | 1.0 [0.0, 2.0] | 1.5 |"
     ) in section
-    assert "| MM + NH | 2 | 3.00 [2.50, 3.50] | 3.00 | 3.50 |" in section
+    assert "| MM + NH | 2 | 3.00 [2.50, 3.50] | 3.00 | 3.50 | 1 / 2 |" in section
+    assert "| Known DA | 3 | 2.00 [1.00, 3.00] | 2.00 | 3.00 | - |" in section
     assert "| Known DA | 2 | 0 | 0 | 2 | 0.5 | 0.5 |" in section
     assert "| ML | 2 | 2 | 0 | 0 | 0.5 | 0.5 |" in section
     # The noisy cell: MM + NH has no run there, so no paired table follows it.

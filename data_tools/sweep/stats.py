@@ -32,6 +32,11 @@ SEED_FIGURES = (
     "switches",
 )
 CHAMPION = "mm-nh"  # compared with every other method, seed by seed
+REFERENCE = "known"  # given the true association: what the others are measured against
+# A run is near the reference when its translation RMSE is at most NEAR_FACTOR times the
+# reference's on the same seed plus NEAR_MARGIN_M: mmslam's per-seed target for MM + NH.
+NEAR_FACTOR = 1.5
+NEAR_MARGIN_M = 0.5
 BASELINE = "ml"  # the summary lines count every method's wins against it
 
 
@@ -114,10 +119,26 @@ class SeedSummary:
     median_translation_rmse: float
     worst_translation_rmse: float  # the largest over seeds
     runtime_s: float  # mean
+    # (runs near the reference, runs the reference has too); None for the reference itself
+    # or without its runs
+    near_reference: tuple[int, int] | None = None
+
+
+def near_reference(
+    ours: dict[tuple[str, int], float], reference: dict[tuple[str, int], float]
+) -> tuple[int, int] | None:
+    """How many of the runs (by `by_run` key) both have are near the reference's (within
+    NEAR_FACTOR times its RMSE plus NEAR_MARGIN_M), out of how many; None if none is shared."""
+    shared = set(ours) & set(reference)
+    if not shared:
+        return None
+    near = sum(ours[k] <= NEAR_FACTOR * reference[k] + NEAR_MARGIN_M for k in shared)
+    return near, len(shared)
 
 
 def seed_summaries(rows: Sequence[ResultRow], methods: Sequence[str]) -> list[SeedSummary]:
     """A summary per method with runs in `rows` (one cell's), in the order of `methods`."""
+    reference = by_run(rows, REFERENCE)
     found = []
     for method in methods:
         mine = [r for r in rows if r.method == method]
@@ -132,6 +153,9 @@ def seed_summaries(rows: Sequence[ResultRow], methods: Sequence[str]) -> list[Se
                 median_translation_rmse=statistics.median(rmse),
                 worst_translation_rmse=max(rmse),
                 runtime_s=statistics.fmean(recorded(mine, "runtime_s")),
+                near_reference=None
+                if method == REFERENCE
+                else near_reference(by_run(mine, method), reference),
             )
         )
     return found

@@ -13,6 +13,9 @@ from data_tools.sweep.results import ResultRow
 from data_tools.sweep.stats import (
     BASELINE,
     CHAMPION,
+    NEAR_FACTOR,
+    NEAR_MARGIN_M,
+    REFERENCE,
     STATISTICS,
     Headline,
     MethodSummary,
@@ -26,7 +29,6 @@ from data_tools.sweep.stats import (
 )
 
 METHOD_NAMES = {"known": "Known DA", "ml": "ML", "gpda": "GPDA", "mm": "MM", "mm-nh": "MM + NH"}
-REFERENCE = "known"  # shown for reference, never bold: the others are compared with each other
 TRANSLATION_DIGITS = 2
 ROTATION_DIGITS = 4
 # The per-cell table's figures (stats.SEED_FIGURES): heading and digits.
@@ -118,12 +120,12 @@ def p_text(p: float | None) -> str:
 
 def seed_table(summaries: Sequence[SeedSummary]) -> str:
     """Per method: mean [95 % interval] over seeds of each figure; the median and worst
-    translation RMSE; the mean replay time."""
+    translation RMSE and the runs near Known DA's; the mean replay time."""
     header = ["Method", "Runs"]
     for column, (title, _) in SEED_COLUMNS.items():
         header.append(title)
         if column == "translation_rmse":
-            header += ["Median", "Worst"]
+            header += ["Median", "Worst", f"Near {method_name(REFERENCE)}"]
     header.append("Time (s)")
     body = []
     for m in summaries:
@@ -134,6 +136,7 @@ def seed_table(summaries: Sequence[SeedSummary]) -> str:
                 row += [
                     _cell(m.median_translation_rmse, TRANSLATION_DIGITS),
                     _cell(m.worst_translation_rmse, TRANSLATION_DIGITS),
+                    "-" if m.near_reference is None else "{} / {}".format(*m.near_reference),
                 ]
         row.append(_cell(m.runtime_s, RUNTIME_DIGITS))
         body.append(row)
@@ -164,7 +167,9 @@ def cell_sections(config: SweepConfig, rows: Sequence[ResultRow]) -> list[str]:
         "(a duplicate included) or to none, with landmarks matched to true ones one to one; "
         "landmarks / true: estimated landmarks holding a real landmark's detection, per real "
         "landmark seen; null wins: every detection left to the null hypothesis, false alarms' "
-        "included. Median and worst: of the runs' translation RMSE. Time: the mean replay. "
+        "included. Median and worst: of the runs' translation RMSE. Near Known DA: the runs "
+        f"whose translation RMSE is at most {NEAR_FACTOR:g} times Known DA's on the same seed "
+        f"plus {NEAR_MARGIN_M:g} m, of the seeds both have. Time: the mean replay. "
         "`-`: no run recorded the figure (runs made before it was recorded).\n",
         f"{method_name(CHAMPION)} against each method on the same seeds, by translation RMSE: "
         f"a win is a lower RMSE, a tie within {100 * TIE_M:g} cm or {100 * TIE_SHARE:g} % of the "

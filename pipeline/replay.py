@@ -136,6 +136,15 @@ def compute_metrics(
         "noise_scales": {
             "odometry": result.noise.odometry,
             "measurement": list(result.noise.measurement),
+            "odometry_moves": [
+                {
+                    "pose_index": m.pose_index,
+                    "from": m.before,
+                    "to": m.after,
+                    "evidence_nats": round(m.evidence, 3),
+                }
+                for m in result.odometry_moves
+            ],
         },
     }
 

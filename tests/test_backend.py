@@ -1,6 +1,7 @@
 """The back-end end to end on small logs the tests write."""
 
 import dataclasses
+import itertools
 
 import gtsam
 import numpy as np
@@ -11,7 +12,7 @@ from pipeline.backend.hypotheses import NULL
 from pipeline.backend.slam import Backend
 from pipeline.config import MIXTURE_SELECTIONS, load_config
 from pipeline.log import read_log
-from pipeline.replay import keyframes, replay
+from pipeline.replay import compute_metrics, keyframes, replay
 from tests.synthetic import (
     KIDNAP_POSE,
     ODOM_SIGMAS,
@@ -238,13 +239,32 @@ def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene,
     """The log states the odometry's covariance; its steps err odom_noise times more (in
     sigma). mm-nh raises the odometry's scale where it is understated, never where it is
     right, and every odometry factor of the graph then carries the new scale."""
-    backend = run_backend(three_laps(tmp_path, square_scene, odom_noise), "mm-nh", drift_config())
+    log = three_laps(tmp_path, square_scene, odom_noise)
+    backend = run_backend(log, "mm-nh", drift_config())
     scale = backend.noise.odometry
     if odom_noise == 1.0:
-        assert scale == 1.0
+        assert scale == 1.0 and backend.odometry_moves == []
     else:
         assert 4.0 <= scale <= 4 * odom_noise**2
+        assert_moves_lead_from_to(backend, 1.0, scale)
     assert_every_odometry_factor_at(backend, scale)
+    # metrics.json reports the moves as made
+    metrics = compute_metrics(read_log(log), backend.result(), "mm-nh", 0.0)
+    reported = metrics["noise_scales"]["odometry_moves"]
+    assert [(m["pose_index"], m["from"], m["to"]) for m in reported] == [
+        (m.pose_index, m.before, m.after) for m in backend.odometry_moves
+    ]
+
+
+def assert_moves_lead_from_to(backend: Backend, start: float, end: float) -> None:
+    """The recorded odometry scale moves: a chain from `start` to `end`, each at an update
+    keyframe after the last, each with at least the evidence the config asks for."""
+    moves, n = backend.odometry_moves, backend.config.noise
+    assert moves and moves[0].before == start and moves[-1].after == end
+    assert all(a.after == b.before for a, b in itertools.pairwise(moves))
+    assert all(m.pose_index % n.update_every == 0 for m in moves)
+    assert [m.pose_index for m in moves] == sorted({m.pose_index for m in moves})
+    assert all(m.evidence >= n.drift_evidence for m in moves)
 
 
 def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square_scene):
@@ -254,4 +274,5 @@ def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square
     backend = run_backend(log, "mm-nh", drift_config(odometry_start_scale=16.0))
     scale = backend.noise.odometry
     assert 1.0 <= scale <= 16.0 / 3.0
+    assert_moves_lead_from_to(backend, 16.0, scale)
     assert_every_odometry_factor_at(backend, scale)

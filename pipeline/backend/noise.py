@@ -226,6 +226,17 @@ class OdometryDrift:
         return self._scale * factor, evidence
 
 
+@dataclass(frozen=True)
+class OdometryScaleMove:
+    """One change of the odometry's variance scale: at which keyframe, from what to what, and
+    the windows' evidence for it (nats)."""
+
+    pose_index: int
+    before: float
+    after: float
+    evidence: float
+
+
 def odometry_scale_move(
     current: float,
     reading: float,

@@ -23,7 +23,13 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, make_method
-from pipeline.backend.noise import NoiseScales, OdometryDrift, odometry_scale_move, updated
+from pipeline.backend.noise import (
+    NoiseScales,
+    OdometryDrift,
+    OdometryScaleMove,
+    odometry_scale_move,
+    updated,
+)
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config
 from pipeline.log.messages import Detection, Odometry
@@ -58,6 +64,7 @@ class BackendResult:
     switches: int = 0
     merges: int = 0
     noise: NoiseScales | None = None  # the noise scales at the end
+    odometry_moves: list[OdometryScaleMove] = field(default_factory=list)  # in order
     step_seconds: list[float] = field(default_factory=list)
 
 
@@ -90,6 +97,7 @@ class Backend:
             start = max(n.odometry_start_scale, n.odometry_scale)
         self.noise = NoiseScales(start, tuple(n.measurement_scale))
         self._odometry_rose = False  # whether the windows have moved the odometry's scale up
+        self.odometry_moves: list[OdometryScaleMove] = []
         self.drift = (
             OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows)
             if self.estimates_noise
@@ -225,8 +233,14 @@ class Backend:
         if odometry is None:
             return False
         self._odometry_rose |= odometry > self.noise.odometry
+        move = OdometryScaleMove(pose_index, self.noise.odometry, odometry, reading[1])
+        self.odometry_moves.append(move)
         logger.debug(
-            "pose %d: odometry scale %.3g -> %.3g", pose_index, self.noise.odometry, odometry
+            "pose %d: odometry scale %.3g -> %.3g (%.1f nats)",
+            pose_index,
+            move.before,
+            move.after,
+            move.evidence,
         )
         self.noise = NoiseScales(odometry, self.noise.measurement)
         self._reweight_odometry()
@@ -289,5 +303,6 @@ class Backend:
             switches=self.switches,
             merges=self.merges,
             noise=self.noise,
+            odometry_moves=self.odometry_moves,
             step_seconds=self.step_seconds,
         )

@@ -205,7 +205,14 @@ NEW_METRICS = {
     },
     "switches": 2,
     "merges": 1,
-    "noise_scales": {"odometry": 4.5, "measurement": [1.0, 0.5, 2.0]},
+    "noise_scales": {
+        "odometry": 4.5,
+        "measurement": [1.0, 0.5, 2.0],
+        "odometry_moves": [
+            {"pose_index": 50, "from": 1.0, "to": 3.0, "evidence_nats": 4.0},
+            {"pose_index": 200, "from": 3.0, "to": 4.5, "evidence_nats": 3.5},
+        ],
+    },
 }
 
 
@@ -224,6 +231,7 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
         "variance_scale_bearing",
         "variance_scale_elevation",
         "variance_scale_range",
+        "odometry_scale_moves",
     } == OPTIONAL
     key = RunKey(Cell(1.0, 0.1), 3, "mm-nh")
     row = row_from_metrics(key, NEW_METRICS)
@@ -238,6 +246,7 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
     assert row.variance_scale_odometry == 4.5
     scales = (row.variance_scale_bearing, row.variance_scale_elevation, row.variance_scale_range)
     assert scales == (1.0, 0.5, 2.0)
+    assert row.odometry_scale_moves == 2
     older = {k: v for k, v in NEW_METRICS.items() if k not in ("association_one_to_one", "merges")}
     older["noise_scales"] = {"odometry": "n/a"}
     old = row_from_metrics(key, older)

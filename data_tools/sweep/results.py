@@ -65,6 +65,7 @@ class ResultRow:
     variance_scale_bearing: float | None = None
     variance_scale_elevation: float | None = None
     variance_scale_range: float | None = None
+    odometry_scale_moves: int | None = None
 
 
 COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(ResultRow))
@@ -104,6 +105,8 @@ def optional_columns(metrics: dict[str, Any]) -> dict[str, Any]:
     values["merges"] = metrics.get("merges")
     values["variance_scale_odometry"] = scales.get("odometry")
     values.update(zip(MEASUREMENT_SCALES, measurement, strict=True))
+    moves = scales.get("odometry_moves")
+    values["odometry_scale_moves"] = len(moves) if isinstance(moves, list) else None
     return {c: _optional(v, _TYPES[c]) for c, v in values.items()}
 
 

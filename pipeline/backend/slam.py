@@ -96,8 +96,7 @@ class Backend:
         if self.estimates_noise:  # from odometry_start_scale, never below its floor
             start = max(n.odometry_start_scale, n.odometry_scale)
         self.noise = NoiseScales(start, tuple(n.measurement_scale))
-        self._odometry_rose = False  # whether the windows have moved the odometry's scale up
-        self.odometry_moves: list[OdometryScaleMove] = []
+        self.odometry_moves: list[OdometryScaleMove] = []  # in order
         self.drift = (
             OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows)
             if self.estimates_noise
@@ -228,11 +227,10 @@ class Backend:
             *reading,
             n.drift_deadband,
             n.drift_evidence,
-            down=not self._odometry_rose,
+            down=not any(m.after > m.before for m in self.odometry_moves),
         )
         if odometry is None:
             return False
-        self._odometry_rose |= odometry > self.noise.odometry
         move = OdometryScaleMove(pose_index, self.noise.odometry, odometry, reading[1])
         self.odometry_moves.append(move)
         logger.debug(

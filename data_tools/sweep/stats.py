@@ -32,7 +32,7 @@ SEED_FIGURES = (
     "switches",
 )
 CHAMPION = "mm-nh"  # compared with every other method, seed by seed
-REFERENCE = "known"  # given the true association: what the others are measured against
+REFERENCE = "known"  # given the true association: the others are measured against it, never bold
 # A run is near the reference when its translation RMSE is at most NEAR_FACTOR times the
 # reference's on the same seed plus NEAR_MARGIN_M: mmslam's per-seed target for MM + NH.
 NEAR_FACTOR = 1.5

@@ -98,6 +98,7 @@ class NoiseConfig:
     max_scale: float = setting(at_least(1.0))
     max_step: float = setting(at_least(1.0))
     drift_window: int = setting(at_least(1))
+    long_drift_window: int = setting(at_least(0))
     drift_windows: int = setting(at_least(1))
     min_drift_windows: int = setting(at_least(1))
     drift_deadband: float = setting(at_least(1.0))

@@ -234,13 +234,17 @@ def assert_every_odometry_factor_at(backend: Backend, scale: float) -> None:
     np.testing.assert_allclose(information, stated / scale, rtol=1e-9)
 
 
+@pytest.mark.parametrize("long_window", [0, 40])
 @pytest.mark.parametrize("odom_noise", [1.0, 4.0])
-def test_an_understated_odometry_is_found_and_reweighted(tmp_path, square_scene, odom_noise):
+def test_an_understated_odometry_is_found_and_reweighted(
+    tmp_path, square_scene, odom_noise, long_window
+):
     """The log states the odometry's covariance; its steps err odom_noise times more (in
     sigma). mm-nh raises the odometry's scale where it is understated, never where it is
-    right, and every odometry factor of the graph then carries the new scale."""
+    right, and every odometry factor of the graph then carries the new scale; long windows
+    read with the short ones say the same of a white error."""
     log = three_laps(tmp_path, square_scene, odom_noise)
-    backend = run_backend(log, "mm-nh", drift_config())
+    backend = run_backend(log, "mm-nh", drift_config(long_drift_window=long_window))
     scale = backend.noise.odometry
     if odom_noise == 1.0:
         assert scale == 1.0 and backend.odometry_moves == []

@@ -207,7 +207,7 @@ def test_drift_finds_the_odometry_scale_against_a_known_relative_pose(true_scale
         for step in truth:
             noise = rng.multivariate_normal(np.zeros(6), true_scale * stated)
             drift.add_step(step * gtsam.Pose3.Expmap(noise), stated)
-        assert drift.full
+        assert drift.due(20 * (window + 1), 20) == [20]
         relative = truth[0]
         for step in truth[1:]:
             relative = relative * step
@@ -218,6 +218,53 @@ def test_drift_finds_the_odometry_scale_against_a_known_relative_pose(true_scale
     assert scale == pytest.approx(true_scale, rel=0.1)
     # the windows were taken at scale 1; at another, the reading is the same scale
     assert drift.reading((1.0, 4.0))[0] == pytest.approx(min(true_scale, 4.0), rel=0.1)
+
+
+def test_long_windows_are_due_every_their_own_length_once_their_steps_are_known():
+    drift = OdometryDrift(length=2, kept=10, min_windows=1, long_length=6)
+    step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0, 0]))
+    for _ in range(4):
+        drift.add_step(step, np.eye(6))
+    assert drift.due(4, 2) == [2]  # a long window needs six steps
+    assert drift.due(5, 2) == []
+    for _ in range(2):
+        drift.add_step(step, np.eye(6))
+    assert drift.due(6, 2) == [2, 6]
+    assert drift.due(8, 2) == [2]  # not every 2: long windows never overlap
+    assert drift.due(12, 2) == [2, 6]
+    alone = OdometryDrift(length=2, kept=10, min_windows=1)
+    for _ in range(6):
+        alone.add_step(step, np.eye(6))
+    assert alone.due(6, 2) == [2]
+
+
+def test_long_windows_read_the_larger_scale_of_a_biased_odometry():
+    """A yaw bias that changes slowly (first-order autoregressive) drifts more over 40 steps
+    than its variance per step says: windows of 40 read a larger scale than windows of 5, and
+    both lengths read together fall in between, each window of a length composed of that many
+    of the latest steps."""
+    rng = np.random.default_rng(11)
+    stated = np.diag([1e-8, 1e-8, 1e-6, 1e-6, 1e-6, 1e-8])
+    short = OdometryDrift(length=5, kept=1000, min_windows=4)
+    long = OdometryDrift(length=40, kept=1000, min_windows=4)
+    both = OdometryDrift(length=5, kept=1000, min_windows=4, long_length=40)
+    truth, bias = [], 0.0
+    for k in range(1, 4001):
+        bias = 0.98 * bias + np.sqrt(1 - 0.98**2) * rng.normal(0.0, 1e-3)
+        step = gtsam.Pose3(gtsam.Rot3(), np.array([0.5, 0, 0]))
+        noisy = step * gtsam.Pose3(gtsam.Rot3.Rz(bias), np.zeros(3))
+        truth.append(step)
+        for drift, every in ((short, 5), (long, 40), (both, 5)):
+            drift.add_step(noisy, stated)
+            for n in drift.due(k, every):
+                relative = gtsam.Pose3()
+                for s in truth[-n:]:
+                    relative = relative * s
+                drift.observe(relative, np.zeros((12, 12)), 1.0, n)
+    bounds = (0.01, 1e4)
+    low, high = short.reading(bounds)[0], long.reading(bounds)[0]
+    assert high > 4.0 * low
+    assert low < both.reading(bounds)[0] < high
 
 
 def test_drift_says_nothing_where_the_landmarks_decide_nothing():

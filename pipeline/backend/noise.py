@@ -182,34 +182,48 @@ def drift_scale(
 
 
 class OdometryDrift:
-    """The odometry's variance scale, from the windows of `length` keyframes seen since the
-    scale last changed (at most `kept`, at least `min_windows`)."""
+    """The odometry's variance scale, from the windows of `length` keyframes and, if
+    `long_length`, of that many, seen since the scale last changed (the latest `kept` of
+    either length, read together once `min_windows` are in).
 
-    def __init__(self, length: int, kept: int, min_windows: int):
+    Long windows are for an odometry that errs by a slow bias: its drift over n keyframes grows
+    faster than n while n is short of the bias's correlation time, so short windows alone read
+    a smaller scale than the loops that must close need (planar-park's yaw: about 14 at 50
+    keyframes, 33 at 200). Where the error is white, both lengths say the same."""
+
+    def __init__(self, length: int, kept: int, min_windows: int, long_length: int = 0):
         self.length = length
+        self.long_length = long_length
         self.min_windows = min_windows
-        self._steps: deque[tuple[gtsam.Pose3, np.ndarray]] = deque(maxlen=length)  # stated
+        # stated steps, enough for the longest window
+        self._steps: deque[tuple[gtsam.Pose3, np.ndarray]] = deque(maxlen=max(length, long_length))
         # (shares, components) of each window, as `drift_spectrum` gives them
         self._windows: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=kept)
         self._scale: float | None = None  # the odometry's scale when the windows were taken
 
-    @property
-    def full(self) -> bool:
-        """Whether the last `length` steps are known: a window can be seen."""
-        return len(self._steps) == self.length
+    def due(self, pose_index: int, every: int) -> list[int]:
+        """The window lengths to observe ending at keyframe `pose_index`, checked every `every`
+        keyframes: each length whose steps are known, every `every` keyframes or, when longer,
+        every its own length, so that no two windows of one length overlap."""
+        lengths = [self.length] + ([self.long_length] if self.long_length else [])
+        return [n for n in lengths if len(self._steps) >= n and pose_index % max(n, every) == 0]
 
     def add_step(self, step: gtsam.Pose3, stated: np.ndarray) -> None:
         self._steps.append((step, stated))
 
-    def observe(self, relative: gtsam.Pose3, joint: np.ndarray, scale: float) -> None:
-        """A window: the estimate's pose of its last keyframe relative to its first, and the
-        (12, 12) joint covariance of the two, with the odometry's covariance at `scale` times
-        the stated one (a new scale forgets the windows taken under the old). A window the
-        model does not explain (`settled`) is left out."""
+    def observe(
+        self, relative: gtsam.Pose3, joint: np.ndarray, scale: float, length: int | None = None
+    ) -> None:
+        """A window of the last `length` steps (default: `self.length`): the estimate's pose
+        of its last keyframe relative to its first, and the (12, 12) joint covariance of the
+        two, with the odometry's covariance at `scale` times the stated one (a new scale
+        forgets the windows taken under the old). A window the model does not explain
+        (`settled`) is left out."""
         if scale != self._scale:
             self._windows.clear()
             self._scale = scale
-        composed, stated = composed_odometry(*zip(*self._steps, strict=True))
+        steps = list(self._steps)[-(length or self.length) :]
+        composed, stated = composed_odometry(*zip(*steps, strict=True))
         delta = gtsam.Pose3.Logmap(composed.between(relative))
         window = drift_spectrum(delta, scale * stated, relative_covariance(relative, joint))
         if settled(*window):

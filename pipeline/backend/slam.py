@@ -98,7 +98,7 @@ class Backend:
         self.noise = NoiseScales(start, tuple(n.measurement_scale))
         self.odometry_moves: list[OdometryScaleMove] = []  # in order
         self.drift = (
-            OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows)
+            OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows, n.long_drift_window)
             if self.estimates_noise
             else None
         )
@@ -245,15 +245,16 @@ class Backend:
         return True
 
     def _drift_reading(self, pose_index: int) -> tuple[float, float] | None:
-        """The odometry's scale its windows say and their evidence, with the window ending
+        """The odometry's scale its windows say and their evidence, with the windows ending
         now."""
-        if self.drift is None or not self.drift.full:
+        if self.drift is None:
             return None
         n = self.config.noise
-        first, last = X(pose_index - n.drift_window), X(pose_index)
-        relative = self.solver.pose(first).between(self.solver.pose(last))
-        joint = self.solver.joint_covariance([first, last])
-        self.drift.observe(relative, joint, self.noise.odometry)
+        for length in self.drift.due(pose_index, n.update_every):
+            first, last = X(pose_index - length), X(pose_index)
+            relative = self.solver.pose(first).between(self.solver.pose(last))
+            joint = self.solver.joint_covariance([first, last])
+            self.drift.observe(relative, joint, self.noise.odometry, length)
         return self.drift.reading((n.odometry_scale, n.max_scale))
 
     def _add_odometry(self, k: int, odometry: Odometry) -> tuple[int, np.ndarray]:

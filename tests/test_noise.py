@@ -248,10 +248,10 @@ def test_long_windows_read_the_larger_scale_of_a_biased_odometry():
     short = OdometryDrift(length=5, kept=1000, min_windows=4)
     long = OdometryDrift(length=40, kept=1000, min_windows=4)
     both = OdometryDrift(length=5, kept=1000, min_windows=4, long_length=40)
+    step = gtsam.Pose3(gtsam.Rot3(), np.array([0.5, 0, 0]))
     truth, bias = [], 0.0
     for k in range(1, 4001):
         bias = 0.98 * bias + np.sqrt(1 - 0.98**2) * rng.normal(0.0, 1e-3)
-        step = gtsam.Pose3(gtsam.Rot3(), np.array([0.5, 0, 0]))
         noisy = step * gtsam.Pose3(gtsam.Rot3.Rz(bias), np.zeros(3))
         truth.append(step)
         for drift, every in ((short, 5), (long, 40), (both, 5)):

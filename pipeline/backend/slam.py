@@ -250,9 +250,11 @@ class Backend:
         if self.drift is None:
             return None
         n = self.config.noise
+        last = X(pose_index)
+        last_pose = self.solver.pose(last)
         for length in self.drift.due(pose_index, n.update_every):
-            first, last = X(pose_index - length), X(pose_index)
-            relative = self.solver.pose(first).between(self.solver.pose(last))
+            first = X(pose_index - length)
+            relative = self.solver.pose(first).between(last_pose)
             joint = self.solver.joint_covariance([first, last])
             self.drift.observe(relative, joint, self.noise.odometry, length)
         return self.drift.reading((n.odometry_scale, n.max_scale))

@@ -79,9 +79,14 @@ class MergeConfig:
     local_log_odds: float = setting(at_least(0.0))
     ambiguity_log_odds: float = setting(at_least(0.0))
     max_search_nodes: int = setting(at_least(1))
+    search_seeds: int = setting(at_least(0))
+    partner_prior: bool
     local_rivals: bool
     max_partners: int = setting(at_least(1))
     max_landmarks: int = setting(at_least(2))
+    drift_scale_weight: float = setting(between(0.0, 1.0))
+    max_drift_scale: float = setting(at_least(1.0))
+    drift_scale_steps: int = setting(at_least(1))
 
 
 @dataclass(frozen=True)

@@ -146,6 +146,7 @@ def compute_metrics(
                 for m in result.odometry_moves
             ],
         },
+        **({"loop_drift": result.loop_drift} if result.loop_drift is not None else {}),
     }
 
 

@@ -12,6 +12,7 @@ from pipeline.backend.decisions import (
     MeasurementSpace,
     clutter_log_density,
     first_component,
+    in_view,
     loop_pairs_needed,
     null_cost,
     relative_null_nll,
@@ -60,6 +61,28 @@ def test_measurement_space_box_volume_and_floors():
     # the volume swept: (15^3 - 5^3) / 3 * 1 rad * (sin(f/2) - sin(-f/2))
     swept = (15**3 - 5**3) / 3 * 1.0 * 2 * math.sin(floor / 2)
     assert space.log_world_volume() == pytest.approx(math.log(swept))
+
+
+def test_landmarks_in_view_are_those_measured_inside_the_box():
+    space = MeasurementSpace()
+    cov = np.diag([0.01**2, 0.01**2, 0.1**2])
+    for v in ([0.5, 0.2, 5.0], [-0.5, -0.2, 15.0]):  # bearing +-0.5, elevation +-0.2, 5..15 m
+        space.observe(np.array(v), cov)
+    inside = space.contains(np.array([[0.0, 0.0, 10.0], [0.6, 0.0, 10.0], [0.0, 0.0, 16.0]]))
+    assert inside.tolist() == [True, False, False]
+    # a sensor at (1, 0, 0) looking along +y (yaw 90 degrees)
+    rotation = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    points = np.array(
+        [
+            [1.0, 10.0, 0.0],  # straight ahead, 10 m
+            [11.0, 1.0, 0.0],  # to its right, bearing -1.47
+            [1.0, -10.0, 0.0],  # behind it
+            [1.0, 10.0, 5.0],  # ahead but 26.6 degrees up
+            [-2.0, 8.0, 0.0],  # ahead, bearing atan(3 / 8) = 0.36
+        ]
+    )
+    assert in_view(rotation, np.array([1.0, 0.0, 0.0]), points, space) == 2
+    assert in_view(rotation, np.zeros(3), np.zeros((0, 3)), space) == 0
 
 
 def test_clutter_density_is_the_null_prior_spread_over_the_space():

@@ -9,11 +9,16 @@ import pytest
 from pipeline.backend.association import gaussian_log_density
 from pipeline.backend.joint_compatibility import (
     PairSet,
+    SeededSearch,
     best_pairs,
     difference_covariance,
+    drift_directions,
+    grown_pairs,
     pairs_to_merge,
 )
 from pipeline.backend.merges import pair_groups
+from pipeline.backend.noise import DriftScaleBelief
+from pipeline.geometry import skew
 
 PRIOR = 6.0  # log(field-of-view volume) + prior log odds, per pair
 
@@ -127,7 +132,7 @@ def test_max_gains_bound_what_any_pair_adds():
         log_prior=np.full(4, PRIOR),
         loop=np.zeros(4, bool),
     )
-    gains = ps.max_gains()
+    gains = ps.max_gains
     for size in range(4):
         for subset in itertools.combinations(range(4), size):
             for p in set(range(4)) - set(subset):
@@ -147,3 +152,120 @@ def test_log_prior_is_added_once_a_pair():
     lik, _ = ps.log_likelihood([0, 1])
     assert ps.score([0, 1]) == pytest.approx(lik + 2 * PRIOR)
     assert math.isclose(ps.score([]), 0.0)
+
+
+def rigid_jacobian(sources: np.ndarray, loop: np.ndarray) -> np.ndarray:
+    """(3 P, 6): how a small rotation about the loop sources' centroid and a translation move
+    each loop pair's difference (zero for local pairs)."""
+    centre = sources[loop].mean(axis=0)
+    A = np.zeros((len(sources), 3, 6))
+    A[loop, :, :3] = -skew(sources[loop] - centre)
+    A[loop, :, 3:] = np.eye(3)
+    return A.reshape(-1, 6)
+
+
+def test_drift_directions_span_a_rigid_correction():
+    rng = np.random.default_rng(2)
+    sources = rng.normal(size=(5, 3)) * 10.0
+    loop = np.array([True, True, False, True, True])
+    A = rigid_jacobian(sources, loop)
+    M = rng.normal(size=(6, 6))
+    correction = M @ M.T
+    G = drift_directions(sources, loop, A @ correction @ A.T)
+    np.testing.assert_allclose(G @ G.T, A @ correction @ A.T, atol=1e-9)
+    np.testing.assert_array_equal(G[6:9], 0.0)  # the local pair moves with the map
+    assert drift_directions(sources, np.zeros(5, bool), np.eye(15)) is None
+
+
+def test_a_drift_scale_mixture_is_the_mixture_of_its_gaussians():
+    from scipy.stats import multivariate_normal
+
+    rng = np.random.default_rng(3)
+    G = rng.normal(size=(9, 2))
+    C = np.eye(9) * 0.2 + np.full((9, 9), 0.05)
+    scales, log_weights = np.array([1.0, 4.0, 30.0]), np.log([0.5, 0.3, 0.2])
+    d = rng.normal(size=(3, 3))
+    ps = PairSet([(10, 0), (11, 1), (12, 2)], d, C, np.zeros(3), np.ones(3, bool),
+                 drift=G, scales=scales, log_scale_weights=log_weights)  # fmt: skip
+    for chosen in ([0], [0, 2], [0, 1, 2]):
+        rows = np.concatenate([np.arange(3 * p, 3 * p + 3) for p in chosen])
+        densities = [
+            multivariate_normal(
+                np.zeros(len(rows)), (C + (c - 1) * G @ G.T)[np.ix_(rows, rows)]
+            ).pdf(d[chosen].ravel())
+            for c in scales
+        ]
+        log_lik, d2 = ps.log_likelihood(chosen)
+        assert log_lik == pytest.approx(math.log(np.dot(np.exp(log_weights), densities)))
+        widest = (C + 29 * G @ G.T)[np.ix_(rows, rows)]
+        assert d2 == pytest.approx(d[chosen].ravel() @ np.linalg.solve(widest, d[chosen].ravel()))
+
+
+def drifted_loop(sources: int, partners: int, understated: float, seed: int = 0):
+    """Recent sources 1000.. seen after a drift that moved them all by one rigid correction,
+    each paired with old landmarks 0..: partner 0 its own, the others a few metres off; the
+    covariance states the drift `understated` times too small. (pair set with the drift
+    prior, the true pairs)."""
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(-20.0, 20.0, size=(sources, 3)) * [1.0, 1.0, 0.05]
+    correction = np.concatenate([[0.0, 0.0, 0.08], rng.normal(size=3) * [4.0, 4.0, 0.1]])
+    loop = np.ones(sources, bool)
+    A = rigid_jacobian(positions, loop)
+    drift = np.diag([1e-6, 1e-6, 0.05**2, 2.0**2, 2.0**2, 0.05**2])  # as stated
+    pairs, diffs, truth = [], [], []
+    for s in range(sources):
+        moved = A[3 * s : 3 * s + 3] @ correction
+        for o in range(partners):
+            pairs.append((1000 + s, partners * s + o))
+            offset = rng.normal(size=3) * 0.05 if o == 0 else rng.normal(size=3) * [3, 3, 0.1]
+            diffs.append(moved + offset)
+            if o == 0:
+                truth.append(len(pairs) - 1)
+    rows = np.repeat(np.arange(sources), partners)
+    J = np.concatenate([A[3 * s : 3 * s + 3] for s in rows])
+    C = J @ (drift / understated) @ J.T + np.eye(3 * len(pairs)) * 2 * 0.05**2
+    sources_of_pairs = positions[rows]
+    G = drift_directions(sources_of_pairs, np.ones(len(pairs), bool), C)
+    scales, log_weights = DriftScaleBelief(0.5, 100.0, 8).relative(1.0)
+    ps = PairSet(
+        pairs=pairs,
+        differences=np.array(diffs),
+        covariance=C,
+        log_prior=np.full(len(pairs), PRIOR),
+        loop=np.ones(len(pairs), bool),
+        drift=G,
+        scales=scales,
+        log_scale_weights=log_weights,
+    )
+    return ps, tuple(truth)
+
+
+def test_a_grown_set_scores_what_its_pairs_score_together():
+    ps, truth = drifted_loop(5, 3, 30.0)
+    chosen, score = grown_pairs(ps, 0.95, (truth[2],))
+    assert chosen[0] == truth[2] and sorted(chosen) == sorted(truth)
+    assert score == pytest.approx(ps.score(list(chosen)))
+    # each landmark in one pair at most
+    landmarks = [j for p in chosen for j in ps.pairs[p]]
+    assert len(landmarks) == len(set(landmarks))
+
+
+def test_a_loop_whose_drift_is_understated_closes_under_the_drift_prior_only():
+    ps, truth = drifted_loop(6, 3, 30.0, seed=1)
+    merged = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 100_000)
+    assert sorted(merged) == sorted(ps.pairs[p] for p in truth)
+    stated = PairSet(ps.pairs, ps.differences, ps.covariance, ps.log_prior, ps.loop)
+    assert pairs_to_merge(stated, 0.95, 8.0, 2.0, 3.0, 100_000) == []
+
+
+def test_seeds_find_the_loop_a_search_too_large_to_finish_does_not():
+    ps, truth = drifted_loop(14, 4, 30.0, seed=2)
+    _, _, finished = best_pairs(ps, 0.95, 50)
+    assert not finished
+    chosen, score, finished = SeededSearch(ps, 0.95, 5)(ps, 0.95, 50)
+    assert finished and sorted(chosen) == sorted(truth)
+    assert score == pytest.approx(ps.score(list(chosen)))
+    # without seeds an unfinished search merges nothing; with them, the loop closes
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 50) == []
+    merged = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 50, seeds=5)
+    assert sorted(merged) == sorted(ps.pairs[p] for p in truth)

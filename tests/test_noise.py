@@ -6,6 +6,7 @@ import pytest
 
 from pipeline.backend.noise import (
     SETTLING_VARIANCE,
+    DriftScaleBelief,
     NoiseScales,
     OdometryDrift,
     ScaleEstimator,
@@ -320,3 +321,37 @@ def test_odometry_scale_moves_by_clear_steps_on_evidence(reading, evidence, expe
 def test_odometry_scale_comes_down_only_when_allowed():
     assert odometry_scale_move(4.0, 1.2, 9.0, 3.0, 3.0, down=False) is None
     assert odometry_scale_move(4.0, 12.0, 9.0, 3.0, 3.0, down=False) == 12.0
+
+
+def test_drift_scale_belief_starts_as_its_prior():
+    belief = DriftScaleBelief(0.5, 100.0, 2)
+    scales, log_weights = belief.relative(1.0)
+    np.testing.assert_allclose(scales, [1.0, 10.0, 100.0])
+    np.testing.assert_allclose(np.exp(log_weights), [0.5, 0.25, 0.25])
+    for none in (DriftScaleBelief(0.0, 100.0, 4), DriftScaleBelief(0.5, 1.0, 4)):
+        np.testing.assert_array_equal(none.relative(1.0)[0], [1.0])
+        np.testing.assert_array_equal(none.relative(1.0)[1], [0.0])
+
+
+def test_drift_scale_belief_is_relative_to_the_odometry_scale():
+    # at an odometry scale of 10, scales 1 and 10 are the current one; 100 is 10 times it
+    scales, log_weights = DriftScaleBelief(0.5, 100.0, 2).relative(10.0)
+    np.testing.assert_allclose(scales, [1.0, 10.0])
+    np.testing.assert_allclose(np.exp(log_weights), [0.75, 0.25])
+    scales, log_weights = DriftScaleBelief(0.5, 100.0, 2).relative(0.5)  # all above it
+    np.testing.assert_allclose(scales, [1.0, 2.0, 20.0, 200.0])
+    np.testing.assert_allclose(np.exp(log_weights), [0.0, 0.5, 0.25, 0.25])
+
+
+def test_drift_scale_belief_is_the_posterior_of_the_loops_closed():
+    belief = DriftScaleBelief(0.5, 100.0, 2)
+    belief.observe(1.0, np.log([0.1, 0.2, 0.6]))  # a loop that a large drift explains best
+    posterior = np.array([0.5 * 0.1, 0.25 * 0.2, 0.25 * 0.6])
+    np.testing.assert_allclose(np.exp(belief.relative(1.0)[1]), posterior / posterior.sum())
+    # seen from an odometry scale of 10, the same loop again: 1 and 10 are one entry
+    belief.observe(10.0, np.log([0.2, 0.6]))
+    posterior *= [0.2, 0.2, 0.6]
+    np.testing.assert_allclose(np.exp(belief.relative(1.0)[1]), posterior / posterior.sum())
+    report = belief.report()
+    assert report["loops"] == 2 and report["scales"] == [1.0, 10.0, 100.0]
+    np.testing.assert_allclose(report["probabilities"], posterior / posterior.sum(), atol=1e-4)

@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from pipeline.backend.mixture import component_nll, null_component_nll
+from pipeline.geometry import bearing_elevation_range
 
 NULL = -1
 
@@ -78,6 +79,12 @@ class MeasurementSpace:
         half = np.maximum(self.high - self.low, self.floor) / 2
         return middle - half, middle + half
 
+    def contains(self, vectors: np.ndarray) -> np.ndarray:
+        """Which of the measurement vectors (N, 3) fall inside the box."""
+        low, high = self.box()
+        vectors = np.asarray(vectors, dtype=float).reshape(-1, len(low))
+        return np.all((vectors >= low) & (vectors <= high), axis=1)
+
     def log_volume(self) -> float:
         """log of the box's volume in measurement units."""
         low, high = self.box()
@@ -110,6 +117,15 @@ def first_component(
     costs = component_nll(np.log(np.asarray(weights, dtype=float)), fit_sq, log_normaliser)
     best = int(np.argmin(costs))
     return NULL if null_nll < costs[best] else best
+
+
+def in_view(rotation: np.ndarray, translation: np.ndarray, points: np.ndarray, space) -> int:
+    """How many of the world `points` (N, 3) a sensor at pose (rotation, translation) would
+    measure inside the measurement space's box."""
+    if len(points) == 0:
+        return 0
+    body = (np.asarray(points, dtype=float) - translation) @ rotation
+    return int(np.count_nonzero(space.contains(bearing_elevation_range(body))))
 
 
 def loop_pairs_needed(marginal_weights: list[float], alone: int, crowded: int) -> int:

@@ -21,6 +21,14 @@ inverted (the sensor's field of view), plus the prior odds and the class agreeme
 shared uncertainty (a long drift) spreads N, so that a few pairs agreeing by chance score
 little, while many agreeing pairs, or pairs of tightly known landmarks, score a lot.
 
+A log may understate its odometry's noise, and then the drift since a loop's old landmarks
+were seen is larger than C_H says: every revisit fails the test. That drift moves the recent
+landmarks together, by one rigid correction (`drift_directions`: G G^T the part of C_H it
+explains), so N above becomes a mixture over how far that part is understated,
+sum_c w_c N(d_H; 0, C_H + (c - 1) G G^T), the weights w_c what the loops closed before said
+(`noise.DriftScaleBelief`). Many pairs agreeing on one large correction then close a loop,
+while a few lookalikes that only a large drift could line up pay for it.
+
 Everything here is pure: differences and their covariance in, the pairs to merge out.
 """
 
@@ -28,11 +36,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
 from pipeline.backend.association import LOG_2PI
+from pipeline.geometry import skew
 
 
 @dataclass(frozen=True)
@@ -47,6 +57,14 @@ class PairSet:
     # Whether two landmarks could be one (their difference passes the gate): a pair and a rival
     # that differ only by such landmarks are both right, and merges will join all three.
     alike: Callable[[int, int], bool] = lambda a, b: False
+    # How far the covariance may be understated along a correction the pairs share (an
+    # odometry that drifts more than its log says moves every recent landmark together): under
+    # scale c the covariance is C + (c - 1) G G^T, G = `drift` (P d, r), and the likelihood is
+    # a mixture over `scales` with these log prior weights (`noise.DriftScaleBelief`). By
+    # default the covariance is taken as it is.
+    drift: np.ndarray | None = None
+    scales: np.ndarray = field(default_factory=lambda: np.ones(1))
+    log_scale_weights: np.ndarray = field(default_factory=lambda: np.zeros(1))
 
     @property
     def dim(self) -> int:
@@ -56,22 +74,53 @@ class PairSet:
         d = self.dim
         return np.concatenate([np.arange(p * d, (p + 1) * d) for p in chosen])
 
-    def log_likelihood(self, chosen: list[int]) -> tuple[float, float]:
-        """(log N(d; 0, C), d^T C^-1 d) of the stacked differences of pairs `chosen`."""
+    def scaled_covariances(self, index: np.ndarray) -> np.ndarray:
+        """(scales, m, m): the covariance of the rows `index` under each scale."""
+        C = self.covariance[np.ix_(index, index)]
+        if self.drift is None:
+            return np.broadcast_to(C, (len(self.scales), *C.shape))
+        G = self.drift[index]
+        return C[None] + (self.scales - 1.0)[:, None, None] * (G @ G.T)[None]
+
+    def scale_log_likelihoods(self, chosen: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """(log N(d; 0, C_c), d^T C_c^-1 d) under each scale c of the stacked differences d
+        of pairs `chosen`. One Cholesky factor L of C serves every scale: with y = L^-1 d and
+        Z = L^-1 G, whose Z^T Z = V diag(lambda) V^T, and w = V^T Z^T y,
+        d^T C_c^-1 d = |y|^2 - sum (c - 1) w^2 / (1 + (c - 1) lambda) and
+        log det C_c = log det C + sum log(1 + (c - 1) lambda)."""
         chosen = list(chosen)  # a tuple would index numpy arrays along several axes
         if not chosen:
-            return 0.0, 0.0
+            return np.zeros(len(self.scales)), np.zeros(len(self.scales))
         index = self._index(chosen)
         L = np.linalg.cholesky(self.covariance[np.ix_(index, index)])
-        y = np.linalg.solve(L, self.differences[chosen].ravel())
-        d2 = float(y @ y)
-        log_det = 2.0 * float(np.sum(np.log(np.diag(L))))
+        d = self.differences[chosen].ravel()
+        log_det = np.full(len(self.scales), 2.0 * float(np.sum(np.log(np.diag(L)))))
+        if self.drift is None:
+            y = np.linalg.solve(L, d)
+            d2 = np.full(len(self.scales), float(y @ y))
+        else:
+            solved = np.linalg.solve(L, np.column_stack([d, self.drift[index]]))
+            y, Z = solved[:, 0], solved[:, 1:]
+            lam, V = np.linalg.eigh(Z.T @ Z)
+            w = V.T @ (Z.T @ y)
+            grow = np.multiply.outer(self.scales - 1.0, np.clip(lam, 0.0, None))  # (scales, r)
+            d2 = float(y @ y) - np.sum((self.scales - 1.0)[:, None] * w**2 / (1.0 + grow), axis=1)
+            log_det = log_det + np.sum(np.log1p(grow), axis=1)
         return -0.5 * (d2 + log_det + len(index) * LOG_2PI), d2
+
+    def log_likelihood(self, chosen: list[int]) -> tuple[float, float]:
+        """(log of the mixture over `scales` of N(d; 0, C_c), the smallest d^T C_c^-1 d over
+        the scales) of the stacked differences d of pairs `chosen`."""
+        if not list(chosen):
+            return 0.0, 0.0
+        log_lik, d2 = self.scale_log_likelihoods(chosen)
+        return float(np.logaddexp.reduce(self.log_scale_weights + log_lik)), float(np.min(d2))
 
     def score(self, chosen: list[int]) -> float:
         chosen = list(chosen)
         return self.log_likelihood(chosen)[0] + float(np.sum(self.log_prior[chosen]))
 
+    @cached_property
     def max_gains(self) -> np.ndarray:
         """Per pair, an upper bound on what adding it to any set can add to the score: its
         difference's covariance given all the others is the smallest it can be, so its
@@ -89,18 +138,47 @@ class PairSet:
         return np.maximum(gains, 0.0)
 
 
+def drift_directions(
+    sources: np.ndarray, loop: np.ndarray, covariance: np.ndarray
+) -> np.ndarray | None:
+    """G (P 3, 6) such that G G^T is the part of the differences' `covariance` (P 3, P 3) that
+    one rigid correction of the recent map explains: the odometry's drift since the old
+    landmarks were seen moves every recent landmark (the `sources` (P, 3) of the loop pairs)
+    by a small rotation about their centroid and a translation, which leaves a pair of two
+    recent landmarks alike. A the correction's Jacobian (zero rows for pairs that close no
+    loop), its covariance as the loop rows state it is A+ C A+^T, and G = A (A+ C A+^T)^1/2.
+    None without loop pairs."""
+    loop = np.asarray(loop, dtype=bool)
+    if not loop.any():
+        return None
+    centre = sources[loop].mean(axis=0)
+    A = np.zeros((len(sources), 3, 6))
+    A[loop, :, :3] = -skew(sources[loop] - centre)
+    A[loop, :, 3:] = np.eye(3)
+    A = A.reshape(-1, 6)
+    rows = np.repeat(loop, 3)
+    pinv = np.linalg.pinv(A[rows])
+    correction = pinv @ covariance[np.ix_(rows, rows)] @ pinv.T
+    values, vectors = np.linalg.eigh(0.5 * (correction + correction.T))
+    return A @ (vectors * np.sqrt(np.clip(values, 0.0, None)))
+
+
 def difference_covariance(
     landmark_covariance: np.ndarray, pairs: list[tuple[int, int]], slots: dict[int, int], dim: int
 ) -> np.ndarray:
     """Joint covariance of the differences l_a - l_b of `pairs`, from the joint covariance of
     the landmarks (`slots[j]` = landmark j's block index in it)."""
-    n = landmark_covariance.shape[0]
-    D = np.zeros((len(pairs) * dim, n))
-    eye = np.eye(dim)
-    for p, (a, b) in enumerate(pairs):
-        D[p * dim : (p + 1) * dim, slots[a] * dim : (slots[a] + 1) * dim] += eye
-        D[p * dim : (p + 1) * dim, slots[b] * dim : (slots[b] + 1) * dim] -= eye
-    C = D @ landmark_covariance @ D.T
+    n, P = landmark_covariance.shape[0] // dim, len(pairs)
+    blocks = landmark_covariance.reshape(n, dim, n, dim).transpose(0, 2, 1, 3)
+    a = np.array([slots[x] for x, _ in pairs], dtype=int)
+    b = np.array([slots[y] for _, y in pairs], dtype=int)
+    C = (
+        blocks[a[:, None], a[None, :]]
+        - blocks[a[:, None], b[None, :]]
+        - blocks[b[:, None], a[None, :]]
+        + blocks[b[:, None], b[None, :]]
+    )
+    C = C.transpose(0, 2, 1, 3).reshape(P * dim, P * dim)
     return 0.5 * (C + C.T)
 
 
@@ -130,7 +208,7 @@ class _Search:
             ]
         self.options = options
         self.required = required is not None
-        gains = pair_set.max_gains()
+        gains = pair_set.max_gains
         best = [max((gains[p] for p in o), default=0.0) for o in options]
         self.remaining = np.concatenate([np.cumsum(best[::-1])[::-1], [0.0]])
         dim = pair_set.dim
@@ -186,6 +264,166 @@ def best_pairs(
     return chosen, score, not search.exhausted
 
 
+def _block_terms(mean: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(log N(mean; 0, block), mean^T block^-1 mean) of each mean (..., d) and block
+    (..., d, d); -inf and inf where a block is not positive definite."""
+    d = mean.shape[-1]
+    blocks = 0.5 * (blocks + np.swapaxes(blocks, -1, -2))
+    sign, log_det = np.linalg.slogdet(blocks)
+    safe = np.where(sign[..., None, None] > 0, blocks, np.eye(d))
+    d2 = np.einsum("...i,...ij,...j->...", mean, np.linalg.inv(safe), mean)
+    log_lik = -0.5 * (d2 + log_det + d * LOG_2PI)
+    return np.where(sign > 0, log_lik, -np.inf), np.where(sign > 0, d2, np.inf)
+
+
+def _diagonal_blocks(covariance: np.ndarray, d: int) -> np.ndarray:
+    """(S, k, d, d) diagonal blocks of covariances (S, k d, k d)."""
+    S, k = covariance.shape[0], covariance.shape[1] // d
+    blocks = covariance.reshape(S, k, d, k, d).transpose(0, 1, 3, 2, 4)
+    return blocks[:, np.arange(k), np.arange(k)]
+
+
+def grown_pairs(
+    pair_set: PairSet,
+    confidence: float,
+    start: tuple[int, ...] = (),
+    forbidden: frozenset[int] = frozenset(),
+) -> tuple[tuple[int, ...], float]:
+    """A jointly compatible set grown greedily from the pairs `start`: each step adds the pair
+    that raises the score most, while one does and the set passes the joint gate; with its
+    score (`PairSet.score`'s). Under each scale, each pair added conditions the differences
+    still open, once (their scores add up along the way), and those sharing a landmark with
+    it drop out."""
+    from scipy.special import chdtri
+
+    d = pair_set.dim
+    alive = np.array(
+        [p for p in range(len(pair_set.pairs)) if p not in forbidden or p in start], dtype=int
+    )
+    rows = (alive[:, None] * d + np.arange(d)).ravel()
+    cov = np.array(pair_set.scaled_covariances(rows))  # (S, m, m), given the chosen pairs
+    mean = np.tile(pair_set.differences.astype(float).ravel()[rows], (len(cov), 1))
+    with_landmark: dict[int, list[int]] = {}
+    for q, pair in enumerate(pair_set.pairs):
+        for j in pair:
+            with_landmark.setdefault(j, []).append(q)
+    weights = pair_set.log_scale_weights
+    log_lik = np.zeros(len(weights))  # the chosen set's, per scale
+    d2_total = np.zeros(len(weights))
+    chosen: list[int] = []
+    prior = 0.0
+
+    def options() -> tuple[np.ndarray, np.ndarray]:
+        k = len(alive)
+        return _block_terms(mean.reshape(len(cov), k, d), _diagonal_blocks(cov, d))
+
+    def add(slot: int, slot_log_lik: np.ndarray, slot_d2: np.ndarray) -> None:
+        nonlocal alive, mean, cov, log_lik, d2_total, prior
+        p = int(alive[slot])
+        chosen.append(p)
+        log_lik = log_lik + slot_log_lik
+        d2_total = d2_total + slot_d2
+        prior += float(pair_set.log_prior[p])
+        own = np.arange(slot * d, (slot + 1) * d)
+        gain = np.swapaxes(np.linalg.solve(cov[:, own][:, :, own], cov[:, own]), 1, 2)
+        a, b = pair_set.pairs[p]
+        kept = np.repeat(~np.isin(alive, with_landmark[a] + with_landmark[b]), d)
+        mean = (mean - np.einsum("smd,sd->sm", gain, mean[:, own]))[:, kept]
+        cov = (cov - gain @ cov[:, own])[:, kept][:, :, kept]
+        alive = alive[kept[::d]]
+
+    for p in start:
+        ll, d2 = options()
+        slot = int(np.flatnonzero(alive == p)[0])
+        add(slot, ll[:, slot], d2[:, slot])
+    score = float(np.logaddexp.reduce(weights + log_lik)) + prior if chosen else 0.0
+    while len(alive):
+        ll, d2 = options()
+        trial = np.logaddexp.reduce((weights + log_lik)[:, None] + ll, axis=0)
+        trial = trial + prior + pair_set.log_prior[alive]
+        gate = float(chdtri((len(chosen) + 1) * d, 1.0 - confidence))
+        trial = np.where(np.min(d2_total[:, None] + d2, axis=0) <= gate, trial, -np.inf)
+        slot = int(np.argmax(trial))
+        if not trial[slot] > score:
+            break
+        add(slot, ll[:, slot], d2[:, slot])
+        score = float(trial[slot])
+    return tuple(chosen), score
+
+
+def seed_estimates(pair_set: PairSet, confidence: float) -> np.ndarray:
+    """Per pair, a quick estimate of the best score of a set grown from it: under each scale,
+    its own gain plus, for every other source, the most one of its pairs adds given this pair
+    alone. A loop pair fixes the correction of the map that the rest of its set must share, so
+    given it the others' differences are nearly independent. Pairs outside the gate alone
+    under every scale estimate -inf."""
+    from scipy.special import chdtri
+
+    n, d = len(pair_set.pairs), pair_set.dim
+    covariances = np.array(pair_set.scaled_covariances(np.arange(n * d)))
+    S = len(covariances)
+    C = covariances.reshape(S, n, d, n, d).transpose(0, 1, 3, 2, 4)  # (S, n, n, d, d)
+    D = pair_set.differences.astype(float)
+    everyone = np.arange(n)
+    sources = np.array([a for a, _ in pair_set.pairs])
+    groups = [sources == s for s in np.unique(sources)]
+    gate = float(chdtri(d, 1.0 - confidence))
+    weights = pair_set.log_scale_weights
+    out = np.full(n, -np.inf)
+    for q in range(n):
+        own, d2 = _block_terms(np.broadcast_to(D[q], (S, d)), C[:, q, q])
+        if np.min(d2) > gate:
+            continue
+        K = C[:, :, q] @ np.linalg.inv(C[:, q, q])[:, None]  # (S, n, d, d)
+        # pair r given q: D_r - K_r D_q, C_rr - K_r C_qr
+        mean = D[None] - np.einsum("snij,j->sni", K, D[q])
+        cov = C[:, everyone, everyone] - np.einsum("snij,snjl->snil", K, C[:, q])
+        gains, d2 = _block_terms(mean, cov)
+        gains = np.where(d2 <= gate, gains + pair_set.log_prior, -np.inf)
+        gains[:, sources == sources[q]] = -np.inf
+        total = own + pair_set.log_prior[q]
+        for members in groups:
+            total = total + np.maximum(np.max(gains[:, members], axis=1), 0.0)
+        out[q] = float(np.logaddexp.reduce(weights + total))
+    return out
+
+
+class SeededSearch:
+    """`best_pairs` for a set of pairs too large to search whole, with its signature: sets
+    grown (`grown_pairs`) from nothing and from each of the `seeds` loop pairs of highest
+    `seed_estimates`, each of which fixes a correction of the map that the pairs grown on it
+    must share; always finished.
+
+    A rival (a set grown from a required pair) scores at least its pair's estimate: growth can
+    miss a rival's best set, and an underrated rival leaves a pairing uncontested, so the
+    estimate errs on the side of no merge."""
+
+    def __init__(self, pair_set: PairSet, confidence: float, seeds: int):
+        self.seeds = seeds
+        self.estimates = seed_estimates(pair_set, confidence)
+
+    def __call__(
+        self,
+        pair_set: PairSet,
+        confidence: float,
+        _max_nodes: int,
+        forbidden: frozenset[int] = frozenset(),
+        required: int | None = None,
+    ) -> tuple[tuple[int, ...], float, bool]:
+        if required is not None:
+            chosen, score = grown_pairs(pair_set, confidence, (required,), forbidden)
+            return chosen, max(score, float(self.estimates[required])), True
+        best, best_score = grown_pairs(pair_set, confidence, (), forbidden)
+        loops = [p for p in range(len(pair_set.pairs)) if pair_set.loop[p] and p not in forbidden]
+        for p in sorted(loops, key=lambda p: -self.estimates[p])[: self.seeds]:
+            if not np.isfinite(self.estimates[p]):
+                break
+            chosen, score = grown_pairs(pair_set, confidence, (p,), forbidden)
+            if score > best_score:
+                best, best_score = chosen, score
+        return best, best_score, True
+
+
 def _same_but_alike(pair_set: PairSet, p: tuple[int, int], q: tuple[int, int]) -> bool:
     """Whether q pairs one of p's landmarks with a landmark alike to p's other one."""
     shared = set(p) & set(q)
@@ -219,6 +457,7 @@ def pairs_to_merge(
     ambiguity_log_odds: float,
     max_nodes: int,
     local_rivals: bool = True,
+    seeds: int = 0,
 ) -> list[tuple[int, int]]:
     """The pairs of the best set that are sure enough and that no rival comes close to.
 
@@ -230,10 +469,15 @@ def pairs_to_merge(
     landmark (one alike to the other of them does not count), comes within
     `ambiguity_log_odds` of the best set: in a row of parked cars, a duplicate of one car
     is often as close to its neighbour (without `local_rivals`, only loop pairs have rivals).
-    An unfinished search decides nothing."""
+    A search too large to finish within `max_nodes` is made again, rivals' too, by growing
+    sets from `seeds` loop pairs (`SeededSearch`); an unfinished search decides nothing."""
     if not pair_set.pairs:
         return []
-    best, score, finished = best_pairs(pair_set, confidence, max_nodes)
+    search = best_pairs
+    best, score, finished = search(pair_set, confidence, max_nodes)
+    if not finished and seeds > 0:
+        search = SeededSearch(pair_set, confidence, seeds)
+        best, score, finished = search(pair_set, confidence, max_nodes)
     if not finished or not best:
         return []
     best = _pulling_their_weight(pair_set, list(best), local_log_odds)
@@ -256,7 +500,7 @@ def pairs_to_merge(
         ]
         contested = False
         for q in rivals:
-            _, rival, rival_finished = best_pairs(
+            _, rival, rival_finished = search(
                 pair_set, confidence, max_nodes, frozenset({p}), required=q
             )
             if not rival_finished or rival >= score - ambiguity_log_odds:

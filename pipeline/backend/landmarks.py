@@ -76,29 +76,22 @@ class SpatialHash:
         lo = self._cell(center - radius)
         hi = self._cell(center + radius)
         span = [high - low + 1 for low, high in zip(lo, hi, strict=True)]
-        found: list[int] = []
         if span[0] * span[1] * span[2] > len(self._cells):
-            # A radius wider than the occupied map: walking the occupied cells is cheaper.
-            cells = [
-                c
-                for c in self._cells
-                if all(low <= x <= high for low, x, high in zip(lo, c, hi, strict=True))
-            ]
+            # A radius wider than the occupied map: every item is a candidate.
+            items = list(self.positions)
         else:
-            cells = [
-                (i, j, k)
+            items = [
+                item
                 for i in range(lo[0], hi[0] + 1)
                 for j in range(lo[1], hi[1] + 1)
                 for k in range(lo[2], hi[2] + 1)
-                if (i, j, k) in self._cells
+                for item in self._cells.get((i, j, k), ())
             ]
-        r2 = radius * radius
-        for cell in cells:
-            for item in self._cells[cell]:
-                d = self.positions[item] - center
-                if float(d @ d) <= r2:
-                    found.append(item)
-        return sorted(found)
+        if not items:
+            return []
+        offsets = np.array([self.positions[item] for item in items]) - center
+        inside = np.einsum("ij,ij->i", offsets, offsets) <= radius * radius
+        return sorted(item for item, keep in zip(items, inside, strict=True) if keep)
 
 
 @dataclass

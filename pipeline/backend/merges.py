@@ -16,10 +16,16 @@ import numpy as np
 from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
-from pipeline.backend.decisions import MeasurementSpace
-from pipeline.backend.joint_compatibility import PairSet, difference_covariance, pairs_to_merge
+from pipeline.backend.decisions import MeasurementSpace, in_view
+from pipeline.backend.joint_compatibility import (
+    PairSet,
+    difference_covariance,
+    drift_directions,
+    pairs_to_merge,
+)
 from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.methods.base import BackendContext
+from pipeline.backend.noise import DriftScaleBelief
 from pipeline.config import MergeConfig
 
 DIM = 3  # point landmarks
@@ -71,6 +77,15 @@ class MergeFinder:
         self.config = config
         self.margin_m = margin_m  # allowance for the other landmark's spread in the search
         self.space = space  # where detections fall: where a landmark of its own could be
+        # How far a loop's covariance may be understated: what the loops closed so far say.
+        self.drift_belief = DriftScaleBelief(
+            config.drift_scale_weight, config.max_drift_scale, config.drift_scale_steps
+        )
+        self.drift_scales = (np.ones(1), np.zeros(1))  # relative to the odometry's, in `find`
+        self.widest = 1.0
+        # Mapped landmarks in the sensor's view, summed over the checks: how many a duplicate
+        # could be a duplicate of.
+        self._in_view = (0, 0)  # (landmarks, checks)
 
     def sources(self, pose_index: int) -> list[int]:
         """Point landmarks seen lately, if any landmark was seen or moved since the last check
@@ -98,38 +113,43 @@ class MergeFinder:
         sources = self.sources(pose_index)
         if not sources:
             return []
-        gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence))
+        # A loop's partner may be as far as the widest drift scale puts it.
+        gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence)) * self.widest
         bound = {j: self._bound(j) for j in sources}
         seen_at: dict[int, set[int]] = {}
         partners: dict[int, list[tuple[float, int]]] = {}
         for a in sources:
             spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound[a])[-1]))
             position = lms.position(a)
+            reach = c.search_sigmas * spread * math.sqrt(self.widest) + self.margin_m
+            near = [b for b in lms.near(LandmarkKind.POINT, position, reach) if b != a]
+            if not near:
+                partners[a] = []
+                continue
+            classes = np.array([lms.landmarks[b].class_probabilities for b in near])
+            near = [
+                b
+                for b, agreement in zip(
+                    near, classes @ lms.landmarks[a].class_probabilities, strict=True
+                )
+                if agreement >= c.min_class_agreement
+            ]
+            for b in near:
+                if b not in bound:
+                    bound[b] = self._bound(b)
+            offsets = position - np.array([lms.position(b) for b in near]).reshape(-1, DIM)
+            spreads = 2.0 * (bound[a] + np.array([bound[b] for b in near]).reshape(-1, DIM, DIM))
+            d2 = assoc.mahalanobis_squared_batch(offsets, spreads)
             found = []
-            for b in lms.near(
-                LandmarkKind.POINT, position, c.search_sigmas * spread + self.margin_m
-            ):
-                if b == a:
-                    continue
-                agreement = class_agreement(
-                    lms.landmarks[a].class_probabilities, lms.landmarks[b].class_probabilities
-                )
-                if agreement < c.min_class_agreement:
-                    continue
-                bound_b = bound.get(b)
-                if bound_b is None:
-                    bound_b = bound[b] = self._bound(b)
-                d2 = assoc.mahalanobis_squared(
-                    position - lms.position(b), 2.0 * (bound[a] + bound_b)
-                )
-                if d2 > gate:
+            for b, distance in zip(near, d2, strict=True):
+                if distance > gate:
                     continue
                 for j in (a, b):
                     if j not in seen_at:
                         seen_at[j] = context.observed_at(j)
                 if seen_at[a] & seen_at[b]:
                     continue  # seen together: two landmarks
-                found.append((d2, b))
+                found.append((float(distance), b))
             partners[a] = sorted(found)[: c.max_partners]
         pairs: set[tuple[int, int]] = set()
         involved: set[int] = set()
@@ -143,18 +163,42 @@ class MergeFinder:
         # The newer landmark (larger id) is the source, merged into the older one.
         return sorted((b, a) for a, b in pairs)
 
+    def _landmarks_in_view(self) -> float:
+        """The mean number of mapped point landmarks in the sensor's view over the checks so
+        far (at least 1), counting the one at this check's predicted pose. A source that is a
+        duplicate is one of them: each pair's prior holds 1 / that mean (`partner_prior`)."""
+        prediction = self.context.prediction
+        if not self.config.partner_prior or prediction is None:
+            return 1.0
+        _, high = self.space.box()
+        pose = prediction.pose
+        translation = pose.translation()
+        lms = self.context.landmarks
+        near = lms.near(LandmarkKind.POINT, translation, float(high[-1]))
+        points = np.array([lms.position(j) for j in near]).reshape(-1, 3)
+        count = in_view(pose.rotation().matrix(), translation, points, self.space)
+        total, checks = self._in_view
+        self._in_view = (total + count, checks + 1)
+        return max(1.0, (total + count) / (checks + 1))
+
     def _bound(self, landmark_id: int) -> np.ndarray:
         landmark = self.context.landmarks.landmarks[landmark_id]
         if landmark.covariance_bound is None:
             landmark.covariance_bound = self.context.solver.marginal_covariance(L(landmark_id))
         return landmark.covariance_bound
 
-    def find(self, pose_index: int) -> list[tuple[int, int]]:
-        """(duplicate, survivor) pairs to merge now."""
+    def find(self, pose_index: int, odometry_scale: float = 1.0) -> list[tuple[int, int]]:
+        """(duplicate, survivor) pairs to merge now. The map's covariance holds the odometry's
+        at `odometry_scale` times the log's; a loop's test weighs a larger drift by what the
+        loops closed so far say (`DriftScaleBelief`), up to `max_drift_scale` times the
+        log's, and what it closes is added to that."""
+        c = self.config
+        self.drift_scales = self.drift_belief.relative(odometry_scale)
+        self.widest = float(np.max(self.drift_scales[0]))
         candidates = self.candidate_pairs(pose_index)
         if not candidates:
             return []
-        context, c = self.context, self.config
+        context = self.context
         involved = sorted({j for pair in candidates for j in pair})
         slots = {j: k for k, j in enumerate(involved)}
         joint = context.solver.joint_covariance([L(j) for j in involved])
@@ -163,18 +207,27 @@ class MergeFinder:
         positions = {j: estimates.landmark(j) for j in involved}
         # Two landmarks both seen lately that were not associated are the association gate's
         # tail, so their merge gate is the wider local_confidence; one seen long ago would close
-        # a loop, and its pair passes at confidence.
-        pairs, differences, loop = [], [], []
+        # a loop, and its pair passes at confidence under the widest drift the test allows.
         covariance = difference_covariance(joint, candidates, slots, DIM)
-        for p, (a, b) in enumerate(candidates):
-            closes_loop = not context.seen_lately(b, pose_index)
-            gate = assoc.chi2_gate(DIM, c.confidence if closes_loop else c.local_confidence)
-            diff = positions[a] - positions[b]
-            block = covariance[p * DIM : (p + 1) * DIM, p * DIM : (p + 1) * DIM]
-            if assoc.mahalanobis_squared(diff, block) <= gate:
-                pairs.append((a, b))
-                differences.append(diff)
-                loop.append(closes_loop)
+        closes = np.array([not context.seen_lately(b, pose_index) for _, b in candidates])
+        sources = np.array([positions[a] for a, _ in candidates])
+        drift = drift_directions(sources, closes, covariance)
+        P = len(candidates)
+        blocks = covariance.reshape(P, DIM, P, DIM)[np.arange(P), :, np.arange(P), :]
+        if drift is not None:  # the widest drift the loop's test allows
+            G = drift.reshape(P, DIM, -1)
+            blocks = blocks + (self.widest - 1.0) * (G @ G.transpose(0, 2, 1))
+        offsets = np.array([positions[a] - positions[b] for a, b in candidates])
+        gates = np.where(
+            closes, assoc.chi2_gate(DIM, c.confidence), assoc.chi2_gate(DIM, c.local_confidence)
+        )
+        kept = [
+            int(p)
+            for p in np.flatnonzero(assoc.mahalanobis_squared_batch(offsets, blocks) <= gates)
+        ]
+        pairs = [candidates[p] for p in kept]
+        differences = [positions[a] - positions[b] for a, b in pairs]
+        loop = [bool(closes[p]) for p in kept]
         if not pairs:
             return []
         gate = assoc.chi2_gate(DIM, c.confidence)
@@ -184,7 +237,7 @@ class MergeFinder:
             return assoc.mahalanobis_squared(positions[x] - positions[y], C) <= gate
 
         lms = context.landmarks.landmarks
-        log_volume = self.space.log_world_volume()
+        log_volume = self.space.log_world_volume() - math.log(self._landmarks_in_view())
         log_prior = np.array(
             [
                 log_volume
@@ -196,16 +249,21 @@ class MergeFinder:
         merged = []
         for group in pair_groups(pairs, loop):
             chosen = [pairs[p] for p in group]
+            rows = np.concatenate([np.arange(kept[p] * DIM, (kept[p] + 1) * DIM) for p in group])
+            closes_loop = any(loop[p] for p in group)
+            scales, log_weights = self.drift_scales if closes_loop else (np.ones(1), np.zeros(1))
             pair_set = PairSet(
                 pairs=chosen,
                 differences=np.array([differences[p] for p in group]),
-                covariance=difference_covariance(joint, chosen, slots, DIM),
+                covariance=covariance[np.ix_(rows, rows)],
                 log_prior=log_prior[group],
                 loop=np.array([loop[p] for p in group]),
                 alike=alike,
+                drift=drift[rows] if closes_loop else None,
+                scales=scales,
+                log_scale_weights=log_weights,
             )
-            closes_loop = bool(pair_set.loop.any())
-            merged += pairs_to_merge(
+            to_merge = pairs_to_merge(
                 pair_set,
                 c.confidence if closes_loop else c.local_confidence,
                 c.loop_log_odds,
@@ -213,5 +271,10 @@ class MergeFinder:
                 c.ambiguity_log_odds,
                 c.max_search_nodes,
                 c.local_rivals,
+                c.search_seeds,
             )
+            closed = [pair_set.pairs.index(pair) for pair in to_merge]
+            if any(pair_set.loop[p] for p in closed):  # what this loop says of the drift
+                self.drift_belief.observe(odometry_scale, pair_set.scale_log_likelihoods(closed)[0])
+            merged += to_merge
         return merged

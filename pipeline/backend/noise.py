@@ -32,6 +32,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import gtsam
 import numpy as np
@@ -238,6 +239,57 @@ class OdometryDrift:
         low, high = bounds
         factor, evidence = drift_scale(shares, components, (low / self._scale, high / self._scale))
         return self._scale * factor, evidence
+
+
+class DriftScaleBelief:
+    """What the loops closed so far say about the odometry's variance scale: a distribution
+    over a log grid of scales, for the loop tests of `merges.py`, which must close a first loop
+    before any estimate of the scale exists (`OdometryDrift` reads it off closed loops).
+
+    It starts as a prior: the log's covariance right (scale 1) with probability 1 - `weight`,
+    the rest spread evenly in log over `steps` scales up to `max_scale`. Each set of pairs
+    merged across a loop multiplies it by its likelihood under each scale, so that once loops
+    close where the log says, a lookalike street that only a drift of many times the stated
+    one could explain is no longer weighed as one; and once they close far from it, the next
+    loop is tested at that scale."""
+
+    def __init__(self, weight: float, max_scale: float, steps: int):
+        self.loops = 0  # loops observed
+        if weight <= 0.0 or max_scale <= 1.0:
+            self.scales, self.log_weights = np.ones(1), np.zeros(1)
+            return
+        grid = np.geomspace(max_scale ** (1.0 / steps), max_scale, steps)
+        self.scales = np.concatenate([[1.0], grid])
+        self.log_weights = np.log(np.concatenate([[1.0 - weight], np.full(steps, weight / steps)]))
+
+    def _above(self, current: float) -> np.ndarray:
+        return self.scales > current * (1.0 + 1e-9)
+
+    def relative(self, current: float) -> tuple[np.ndarray, np.ndarray]:
+        """(scales, log weights) relative to the odometry's `current` scale: the scales at or
+        below it count as the current one (a loop test only widens the covariance)."""
+        above = self._above(current)
+        folded = np.logaddexp.reduce(self.log_weights[~above]) if (~above).any() else -np.inf
+        scales = np.concatenate([[1.0], self.scales[above] / current])
+        return scales, np.concatenate([[folded], self.log_weights[above]])
+
+    def observe(self, current: float, log_likelihoods: np.ndarray) -> None:
+        """A loop closed: its log-likelihood under each of `relative(current)`'s scales."""
+        above = self._above(current)
+        full = np.empty(len(self.scales))
+        full[~above] = log_likelihoods[0]
+        full[above] = log_likelihoods[1:]
+        posterior = self.log_weights + full
+        self.log_weights = posterior - np.logaddexp.reduce(posterior)
+        self.loops += 1
+
+    def report(self) -> dict[str, Any]:
+        """For metrics.json: the loops observed, the scales and their probabilities now."""
+        return {
+            "loops": self.loops,
+            "scales": [round(float(c), 4) for c in self.scales],
+            "probabilities": [round(float(p), 4) for p in np.exp(self.log_weights)],
+        }
 
 
 @dataclass(frozen=True)

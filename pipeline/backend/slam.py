@@ -65,6 +65,8 @@ class BackendResult:
     merges: int = 0
     noise: NoiseScales | None = None  # the noise scales at the end
     odometry_moves: list[OdometryScaleMove] = field(default_factory=list)  # in order
+    # what the loops closed by merges said of the odometry's scale (`DriftScaleBelief.report`)
+    loop_drift: dict | None = None
     step_seconds: list[float] = field(default_factory=list)
 
 
@@ -278,7 +280,7 @@ class Backend:
         """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""
         if self.merger is None or pose_index % self.config.merges.every_keyframes:
             return []
-        merged = self.merger.find(pose_index)
+        merged = self.merger.find(pose_index, self.noise.odometry)
         for duplicate, survivor in merged:
             self.method.merge(survivor, duplicate)
         self.merges += len(merged)
@@ -305,5 +307,6 @@ class Backend:
             merges=self.merges,
             noise=self.noise,
             odometry_moves=self.odometry_moves,
+            loop_drift=None if self.merger is None else self.merger.drift_belief.report(),
             step_seconds=self.step_seconds,
         )

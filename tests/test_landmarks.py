@@ -1,0 +1,24 @@
+"""The landmarks' spatial index answers what a search of every landmark would."""
+
+import numpy as np
+import pytest
+
+from pipeline.backend.landmarks import SpatialHash
+
+
+@pytest.mark.parametrize("radius", [0.5, 4.0, 500.0])  # a few cells, many, wider than the map
+def test_a_query_finds_exactly_the_items_within_its_radius(radius):
+    rng = np.random.default_rng(1)
+    index = SpatialHash(cell_size=2.0)
+    positions = rng.uniform(-20.0, 20.0, size=(300, 3))
+    for item, position in enumerate(positions):
+        index.set(item, position)
+    for item in range(0, 300, 7):  # some move, some leave
+        positions[item] += 3.0
+        index.set(item, positions[item])
+    for item in range(0, 300, 11):
+        index.remove(item)
+    alive = [i for i in range(300) if i % 11]
+    for center in rng.uniform(-20.0, 20.0, size=(20, 3)):
+        expected = [i for i in alive if np.linalg.norm(positions[i] - center) <= radius]
+        assert index.query(center, radius) == expected

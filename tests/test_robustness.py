@@ -1,0 +1,46 @@
+"""The association suite's table: its sweeps load, and its figures are the runs'."""
+
+import dataclasses
+
+from data_tools.robustness import near, suite, suite_table
+from data_tools.sweep.config import load_sweep_config
+from data_tools.sweep.results import ResultRow
+from pipeline.settings import config_path
+
+
+def row(method: str, seed: int, rmse: float, **more) -> ResultRow:
+    zeros = {f.name: 0 for f in dataclasses.fields(ResultRow) if f.default is dataclasses.MISSING}
+    values = {**zeros, "cell": "base", "seed": seed, "method": method, "translation_rmse": rmse}
+    return ResultRow(**{**values, **more})
+
+
+def test_every_sweep_of_the_suite_loads_with_known_and_ml_beside_mm_nh():
+    names = suite()
+    assert "robust-city" in names and len(names) >= 8
+    for name in names:
+        config = load_sweep_config(config_path(f"sweeps/{name}.toml"))
+        assert {"known", "ml", "mm-nh"} <= set(config.methods)
+
+
+def test_near_is_within_the_margin_of_known_and_no_worse_than_ml():
+    rows = [row("known", s, 1.0) for s in range(4)]
+    rows += [row("ml", 0, 1.9), row("ml", 1, 1.5), row("ml", 2, 9.0), row("ml", 3, 9.0)]
+    # within 1.5 x 1.0 + 0.5 = 2.0: seeds 0 (but worse than ML), 1 (equal), 2; not 3
+    rows += [row("mm-nh", 0, 1.95), row("mm-nh", 1, 1.5), row("mm-nh", 2, 2.0)]
+    rows += [row("mm-nh", 3, 2.1)]
+    assert near(rows, "mm-nh") == (2, 4)
+    assert near(rows, "ml") == (2, 4)  # ML against Known DA alone
+
+
+def test_the_table_holds_each_methods_figures_over_its_seeds():
+    rows = [row("known", s, 1.0, runtime_s=2.0, landmarks_per_true=1.0) for s in range(2)]
+    rows += [row("mm-nh", 0, 1.0, runtime_s=4.0, landmarks_per_true=1.1, one_to_one_wrong=3)]
+    rows += [row("mm-nh", 1, 3.0, runtime_s=6.0, landmarks_per_true=1.3, one_to_one_wrong=5)]
+    table = suite_table({"robust-city": rows})
+    (line,) = [x for x in table.splitlines() if "MM + NH" in x]
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    # missed associations were not recorded for these runs: "-"
+    assert cells == ["city", "MM + NH", "2.00", "2.00", "3.00", "4.0", "-", "0.0", "1.20",
+                     "5.0", "1 / 2"]  # fmt: skip
+    (known,) = [x for x in table.splitlines() if "Known DA" in x]
+    assert known.rstrip(" |").endswith("-")  # Known DA is the reference, never near itself

@@ -9,7 +9,6 @@ Every function takes one item or a stack of them along leading axes.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 # Below this angle the closed forms lose precision; their Taylor series take over.
 _SMALL_ANGLE = 1e-4
@@ -45,9 +44,21 @@ def so3_exp(omega: np.ndarray) -> np.ndarray:
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices to rotation vectors (stable near 0 and pi)."""
-    R = np.asarray(R, dtype=float)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-2], 3)
+    """Rotation matrices to rotation vectors, through the quaternion (stable near 0 and pi):
+    the angle is 2 atan2(|v|, w) about v."""
+    q = quaternion_from_rotation(R)
+    v, w = q[..., :3], q[..., 3]
+    n = np.linalg.norm(v, axis=-1)
+    small = n < _SMALL_ANGLE * w  # w >= 0: small angles only
+    w_small = np.where(small, w, 1.0)
+    ratio = np.where(small, n, 0.0) / w_small
+    # angle / |v|, with its series 2/w (1 - (|v|/w)^2 / 3) where |v| vanishes
+    scale = np.where(
+        small,
+        2.0 / w_small * (1.0 - ratio * ratio / 3.0),
+        2.0 * np.arctan2(n, w) / np.where(small, 1.0, n),
+    )
+    return v * scale[..., None]
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -133,9 +144,31 @@ def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
 
 
 def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Rotation matrices to [x, y, z, w] with w >= 0 (one of the two signs: canonical output)."""
+    """Rotation matrices to [x, y, z, w] with w >= 0 (one of the two signs: canonical output).
+    Each is read off the largest of 4x^2, 4y^2, 4z^2, 4w^2 (Shepperd's method: no division by
+    a small number), then normalised."""
     R = np.asarray(R, dtype=float)
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
+    m = R.reshape(-1, 3, 3)
+    m00, m11, m22 = m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]
+    # Sums and differences of the off-diagonal pairs: 4xy, 4xz, 4yz and 4wx, 4wy, 4wz.
+    xy, xz, yz = m[:, 0, 1] + m[:, 1, 0], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1]
+    wx, wy, wz = m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]
+    squares = np.stack(  # 4x^2, 4y^2, 4z^2, 4w^2
+        [1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22, 1 + m00 + m11 + m22],
+        axis=-1,
+    )
+    # Row k: 4 q_k times (x, y, z, w); any row divided by its own 4 q_k is the quaternion.
+    rows = np.stack(
+        [
+            np.stack([squares[:, 0], xy, xz, wx], axis=-1),
+            np.stack([xy, squares[:, 1], yz, wy], axis=-1),
+            np.stack([xz, yz, squares[:, 2], wz], axis=-1),
+            np.stack([wx, wy, wz, squares[:, 3]], axis=-1),
+        ],
+        axis=1,
+    )
+    q = rows[np.arange(len(m)), np.argmax(squares, axis=-1)]
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q = np.where(q[:, 3:4] < 0.0, -q, q)
     return q.reshape(*R.shape[:-2], 4)
 

@@ -103,6 +103,38 @@ def test_so3_exp_inverts_log():
     np.testing.assert_allclose(lie.so3_log(lie.so3_exp(w)), w, atol=1e-9)
 
 
+@pytest.mark.parametrize("angle", [0.0, 1e-12, 1e-6, 1e-3, 1.0, 3.0, np.pi - 1e-6, np.pi])
+def test_so3_log_and_quaternion_match_gtsam_from_zero_to_pi(angle):
+    axes = RNG.normal(size=(20, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    rotations = [gtsam.Rot3.Expmap(axis * angle) for axis in axes]
+    matrices = np.array([r.matrix() for r in rotations])
+    logs = lie.so3_log(matrices)
+    quaternions = lie.quaternion_from_rotation(matrices)
+    for rotation, log, q in zip(rotations, logs, quaternions, strict=True):
+        expected = gtsam.Rot3.Logmap(rotation)
+        if angle > 3.0:  # at pi the axis' sign is either
+            expected = expected if expected @ log >= 0 else -expected
+        np.testing.assert_allclose(log, expected, atol=1e-9)
+        theirs = rotation.toQuaternion()
+        theirs = np.array([theirs.x(), theirs.y(), theirs.z(), theirs.w()])
+        theirs = theirs if theirs[3] > 0 or (theirs[3] == 0 and theirs @ q > 0) else -theirs
+        np.testing.assert_allclose(q, theirs, atol=1e-9)
+        assert q[3] >= 0.0
+
+
+def test_quaternion_of_hand_computed_rotations():
+    half = np.sqrt(0.5)
+    about_z = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # 90 deg about z
+    np.testing.assert_allclose(lie.quaternion_from_rotation(about_z), [0, 0, half, half])
+    flip_x = np.diag([1.0, -1.0, -1.0])  # 180 deg about x: w = 0
+    np.testing.assert_allclose(lie.quaternion_from_rotation(flip_x), [1, 0, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(lie.so3_log(flip_x), [np.pi, 0, 0], atol=1e-15)
+    np.testing.assert_allclose(lie.so3_log(np.eye(3)), [0, 0, 0])
+    stacked = lie.so3_log(np.broadcast_to(about_z, (2, 4, 3, 3)))
+    np.testing.assert_allclose(stacked, np.broadcast_to([0, 0, np.pi / 2], (2, 4, 3)))
+
+
 def test_pose_residual_matches_gtsam_between_factor_error():
     x, lm = random_pose(), random_pose()
     z = x.between(lm).compose(gtsam.Pose3.Expmap(RNG.normal(size=6) * 0.05))

@@ -121,6 +121,7 @@ class Isam2Config:
     wildfire_threshold: float = setting(at_least(0.0))
     relinearize_skip: int = setting(at_least(1))
     factorization: str = setting(one_of("CHOLESKY", "QR"))
+    batch_iterations: int = setting(at_least(0))
 
 
 @dataclass(frozen=True)

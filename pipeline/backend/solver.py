@@ -3,9 +3,11 @@ estimates and marginals the association step asks for.
 
 A valid graph can still defeat Cholesky: GTSAM refuses a frontal block whose conditioning is
 too poor ("Indeterminate linear system"), which stiff odometry (variances of 1e-6 on the
-degrees of freedom a planar robot does not move in) beside loose landmarks can produce. Then
-the whole graph is solved again with QR factorisation, which does without that test, and with
-Dogleg steps; the solver keeps both from there on. Marginals refused the same way do the same.
+degrees of freedom a planar robot does not move in) beside loose landmarks, or a bad step at a
+large loop closure, can produce. Then the whole graph is solved in batch (Levenberg-Marquardt)
+and iSAM2 starts again from that solution; if Cholesky refuses that too, with QR factorisation,
+which does without that test, and Dogleg steps, kept from there on. Marginals refused the same
+way do the same.
 """
 
 from __future__ import annotations
@@ -133,8 +135,8 @@ class Isam2Solver:
             else:
                 result = self._incremental()
         except RuntimeError as exc:
-            self._check_qr_can_help(exc, f"iSAM2 update {self.num_updates}")
-            result = self._solve_again_with_qr(old.getLinearizationPoint())
+            self._check_refusal(exc, f"iSAM2 update {self.num_updates}")
+            result = self._solve_again(old.getLinearizationPoint())
         self._clear_pending()
         self.num_updates += 1
         return set(result.getMarkedKeys())
@@ -154,43 +156,72 @@ class Isam2Solver:
         self._pending = {}
         self._removals = []
 
-    def _check_qr_can_help(self, exc: RuntimeError, what: str) -> None:
+    def _check_refusal(self, exc: RuntimeError, what: str) -> None:
         """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried."""
         reason = gtsam_reason(str(exc))
         if self.factorization == "QR" or "Indeterminate" not in reason:
             raise SolverError(f"{what} failed: {reason}") from exc
-        logger.warning("%s: %s; solving the graph again with QR factorisation", what, reason)
+        logger.warning("%s: %s; solving the graph again in batch", what, reason)
 
-    def _solve_again_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
-        """A new iSAM2 with QR factorisation, given everything (`_rebuild`) at `theta`."""
+    def _solve_again(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
+        """Everything (`_graph`) solved in batch by Levenberg-Marquardt from `theta`, then a
+        new iSAM2 at that solution: with the factorisation so far if it takes it, else with QR.
+
+        Cholesky refuses a graph when an update's step went wrong: a large loop closure whose
+        Gauss-Newton step from a poor linearisation bent the stiff odometry, so that one block
+        is nearly singular. Incremental steps from there (QR and Dogleg included) kept the bend
+        and grew it, to tens of metres with known association (indoor-tags noise x6, a city
+        grid); LM's damped iterations undo it, and the conditioning comes back with it."""
+        graph, values = self._graph(theta)
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.batch_iterations)
+        solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+        if self.factorization != "QR":
+            try:
+                return self._rebuild(self.factorization, solved)
+            except RuntimeError as exc:
+                logger.warning(
+                    "iSAM2 update %d: %s after a batch solve; QR factorisation from here",
+                    self.num_updates,
+                    gtsam_reason(str(exc)),
+                )
+        return self._rebuild_with_qr(solved)
+
+    def _rebuild_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         try:
             return self._rebuild("QR", theta)
         except RuntimeError as exc:
             reason = gtsam_reason(str(exc))
             raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
 
-    def _rebuild(self, factorization: str, theta: gtsam.Values) -> gtsam.ISAM2Result:
-        """A new iSAM2 (`factorization`), given every factor in the graph (committed and
-        pending, removals left out) at the linearisation point `theta` the old one had."""
-        handles = [*self._committed, *self._pending]
+    def _graph(self, theta: gtsam.Values) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+        """Every factor in the graph (committed, then pending; removals left out) and the
+        values to start from: `theta` (the old iSAM2's linearisation point) for the variables
+        some factor still holds, and the pending values the old iSAM2 did not take."""
         factors = {**self._committed, **self._pending}
         graph = gtsam.NonlinearFactorGraph()
         keys: set[int] = set()
-        for handle in handles:
-            graph.add(factors[handle])
-            keys.update(factors[handle].keys())
+        for factor in factors.values():
+            graph.add(factor)
+            keys.update(factor.keys())
         values = gtsam.Values(theta)
         for key in theta.keys():  # noqa: SIM118 - gtsam.Values iterates as a pybind object
             if key not in keys:  # a variable every factor of which was removed
                 values.erase(key)
-        new = gtsam.Values(self._values)  # pending values the old iSAM2 did not take
+        new = gtsam.Values(self._values)
         for key in new.keys():  # noqa: SIM118
             if values.exists(key):
                 new.erase(key)
         values.insert(new)
-        self.factorization = factorization
-        self.isam = gtsam.ISAM2(self._params(factorization))
-        result = self.isam.update(graph, values)
+        return graph, values
+
+    def _rebuild(self, factorization: str, theta: gtsam.Values) -> gtsam.ISAM2Result:
+        """A new iSAM2 (`factorization`) given `_graph(theta)`; the handles follow."""
+        handles = [*self._committed, *self._pending]
+        graph, values = self._graph(theta)
+        isam = gtsam.ISAM2(self._params(factorization))
+        result = isam.update(graph, values)  # raises before anything here changes
+        self.factorization, self.isam = factorization, isam
         self._slots = dict(zip(handles, result.getNewFactorsIndices(), strict=True))
         return result
 
@@ -228,11 +259,18 @@ class Isam2Solver:
 
         Marginals eliminate with the update's factorisation, so Cholesky's conditioning test
         can refuse a variable held only by its weak prior (a landmark every mixture of which
-        chose another): the solver moves to QR as an update would, taking what is pending."""
+        chose another): the solver solves again as an update would, taking what is pending,
+        and moves to QR if Cholesky still refuses the query."""
+        what = f"marginals after iSAM2 update {self.num_updates}"
         try:
             return query()
         except RuntimeError as exc:
-            self._check_qr_can_help(exc, f"marginals after iSAM2 update {self.num_updates}")
-            self._solve_again_with_qr(self.isam.getLinearizationPoint())
+            self._check_refusal(exc, what)
+            self._solve_again(self.isam.getLinearizationPoint())
             self._clear_pending()
+        try:
+            return query()
+        except RuntimeError as exc:  # the batch solve did not help: QR, as an update would
+            self._check_refusal(exc, what)
+            self._rebuild_with_qr(self.isam.getLinearizationPoint())
             return query()

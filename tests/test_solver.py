@@ -124,6 +124,23 @@ def test_a_graph_cholesky_refuses_again_after_the_batch_solve_goes_to_qr(monkeyp
     np.testing.assert_allclose(flaky.point(L(0)), plain.point(L(0)), atol=1e-6)
 
 
+def test_a_failed_batch_solve_goes_to_qr(monkeypatch):
+    class Failing:
+        def __init__(self, *args):
+            pass
+
+        def optimize(self):
+            raise RuntimeError(INDETERMINATE)
+
+    plain, flaky, _ = with_next_step_pending()
+    flaky.isam = Refusing(flaky.isam)
+    monkeypatch.setattr(gtsam, "LevenbergMarquardtOptimizer", Failing)
+    plain.update()
+    flaky.update()
+    assert flaky.factorization == "QR"
+    np.testing.assert_allclose(flaky.pose(X(4)).matrix(), plain.pose(X(4)).matrix(), atol=1e-6)
+
+
 def test_the_batch_solve_ends_where_one_step_from_a_bad_start_cannot():
     """A loop closed from a start bent by 1 rad: one Gauss-Newton step (an iSAM2 update) stays
     far from the optimum; the solve after a refusal ends at batch Levenberg-Marquardt's."""

@@ -175,16 +175,14 @@ class Isam2Solver:
         graph, values = self._graph(theta)
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.batch_iterations)
-        solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        if self.factorization != "QR":
-            try:
-                return self._rebuild(self.factorization, solved)
-            except RuntimeError as exc:
-                logger.warning(
-                    "iSAM2 update %d: %s after a batch solve; QR factorisation from here",
-                    self.num_updates,
-                    gtsam_reason(str(exc)),
-                )
+        solved, what = theta, "in the batch solve"
+        try:
+            solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            what = "after the batch solve"
+            return self._rebuild(self.factorization, solved)
+        except RuntimeError as exc:
+            reason = gtsam_reason(str(exc))
+            logger.warning("iSAM2 update %d: %s %s; QR from here", self.num_updates, reason, what)
         return self._rebuild_with_qr(solved)
 
     def _rebuild_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:

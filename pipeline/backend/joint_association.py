@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.backend.association import LOG_2PI
+from pipeline.backend.association import LOG_2PI, chi2_gate
 
 NONE = -1
 
@@ -133,8 +133,6 @@ def _max_gain(det: DetectionOptions) -> float:
 
 class _Search:
     def __init__(self, problem: KeyframeProblem, max_nodes: int, required: tuple[int, int] | None):
-        from scipy.special import chdtri
-
         self.problem = problem
         self.max_nodes = max_nodes
         self.required = required
@@ -148,9 +146,7 @@ class _Search:
         self.remaining_gain = np.concatenate([np.cumsum(gains[::-1])[::-1], [0.0]])
         self.null_total = sum(d.null_log_density for d in problem.detections)
         total_dim = sum(d.dim for d in problem.detections)
-        self.gates = {
-            k: float(chdtri(k, 1.0 - problem.gate_confidence)) for k in range(1, total_dim + 1)
-        }
+        self.gates = {k: chi2_gate(k, problem.gate_confidence) for k in range(1, total_dim + 1)}
         self.nodes = 0
         self.exhausted = False
         self.best: list[int] | None = None
@@ -214,9 +210,7 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     covariance = J @ problem.covariance @ J.T + det.covariance
     difference = det.residuals[k] - det.residuals[other]
     d2 = float(difference @ np.linalg.solve(covariance, difference))
-    from scipy.special import chdtri
-
-    return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
+    return d2 <= chi2_gate(det.dim, problem.gate_confidence)
 
 
 def alike_in_measurement(problem: KeyframeProblem, i: int, k: int, other: int) -> bool:
@@ -224,10 +218,8 @@ def alike_in_measurement(problem: KeyframeProblem, i: int, k: int, other: int) -
     noise: two estimates of one landmark, not a lookalike hidden by a large uncertainty."""
     det = problem.detections[i]
     difference = det.residuals[k] - det.residuals[other]
-    from scipy.special import chdtri
-
     d2 = float(difference @ np.linalg.solve(det.covariance, difference))
-    return d2 <= float(chdtri(det.dim, 1.0 - problem.gate_confidence))
+    return d2 <= chi2_gate(det.dim, problem.gate_confidence)
 
 
 def _to_the_established(problem: KeyframeProblem, assignment: list[int]) -> list[int]:

@@ -41,7 +41,7 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.backend.association import LOG_2PI
+from pipeline.backend.association import LOG_2PI, chi2_gate
 from pipeline.geometry import skew
 
 
@@ -193,8 +193,6 @@ class _Search:
         forbidden: frozenset[int] = frozenset(),
         required: int | None = None,
     ):
-        from scipy.special import chdtri
-
         self.pair_set = pair_set
         sources = sorted({a for a, _ in pair_set.pairs})
         options = [
@@ -212,9 +210,7 @@ class _Search:
         best = [max((gains[p] for p in o), default=0.0) for o in options]
         self.remaining = np.concatenate([np.cumsum(best[::-1])[::-1], [0.0]])
         dim = pair_set.dim
-        self.gates = {
-            k: float(chdtri(k * dim, 1.0 - confidence)) for k in range(1, len(options) + 1)
-        }
+        self.gates = {k: chi2_gate(k * dim, confidence) for k in range(1, len(options) + 1)}
         self.max_nodes = max_nodes
         self.nodes = 0
         self.exhausted = False
@@ -294,8 +290,6 @@ def grown_pairs(
     score (`PairSet.score`'s). Under each scale, each pair added conditions the differences
     still open, once (their scores add up along the way), and those sharing a landmark with
     it drop out."""
-    from scipy.special import chdtri
-
     d = pair_set.dim
     alive = np.array(
         [p for p in range(len(pair_set.pairs)) if p not in forbidden or p in start], dtype=int
@@ -341,7 +335,7 @@ def grown_pairs(
         ll, d2 = options()
         trial = np.logaddexp.reduce((weights + log_lik)[:, None] + ll, axis=0)
         trial = trial + prior + pair_set.log_prior[alive]
-        gate = float(chdtri((len(chosen) + 1) * d, 1.0 - confidence))
+        gate = chi2_gate((len(chosen) + 1) * d, confidence)
         trial = np.where(np.min(d2_total[:, None] + d2, axis=0) <= gate, trial, -np.inf)
         slot = int(np.argmax(trial))
         if not trial[slot] > score:
@@ -357,8 +351,6 @@ def seed_estimates(pair_set: PairSet, confidence: float) -> np.ndarray:
     alone. A loop pair fixes the correction of the map that the rest of its set must share, so
     given it the others' differences are nearly independent. Pairs outside the gate alone
     under every scale estimate -inf."""
-    from scipy.special import chdtri
-
     n, d = len(pair_set.pairs), pair_set.dim
     covariances = np.array(pair_set.scaled_covariances(np.arange(n * d)))
     S = len(covariances)
@@ -367,7 +359,7 @@ def seed_estimates(pair_set: PairSet, confidence: float) -> np.ndarray:
     everyone = np.arange(n)
     sources = np.array([a for a, _ in pair_set.pairs])
     groups = [sources == s for s in np.unique(sources)]
-    gate = float(chdtri(d, 1.0 - confidence))
+    gate = chi2_gate(d, confidence)
     weights = pair_set.log_scale_weights
     out = np.full(n, -np.inf)
     for q in range(n):

@@ -81,8 +81,6 @@ class MergeFinder:
         self.drift_belief = DriftScaleBelief(
             config.drift_scale_weight, config.max_drift_scale, config.drift_scale_steps
         )
-        self.drift_scales = (np.ones(1), np.zeros(1))  # relative to the odometry's, in `find`
-        self.widest = 1.0
         # Mapped landmarks in the sensor's view, summed over the checks: how many a duplicate
         # could be a duplicate of.
         self._in_view = (0, 0)  # (landmarks, checks)
@@ -103,25 +101,26 @@ class MergeFinder:
             and lms[j].kind is LandmarkKind.POINT
         )
 
-    def candidate_pairs(self, pose_index: int) -> list[tuple[int, int]]:
+    def candidate_pairs(self, pose_index: int, widest: float = 1.0) -> list[tuple[int, int]]:
         """(source, target) pairs that may be one landmark, by cheap tests only: each source's
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
-        marginal over them all must stay cheap, also after a long drift)."""
+        marginal over them all must stay cheap, also after a long drift). `widest`: the
+        largest drift scale a loop is tested at, relative to the map's covariance."""
         context, c = self.context, self.config
         lms = context.landmarks
         sources = self.sources(pose_index)
         if not sources:
             return []
-        # A loop's partner may be as far as the widest drift scale puts it.
-        gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence)) * self.widest
+        # A loop's partner may be as far as the `widest` drift scale tested puts it.
+        gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence)) * widest
         bound = {j: self._bound(j) for j in sources}
         seen_at: dict[int, set[int]] = {}
         partners: dict[int, list[tuple[float, int]]] = {}
         for a in sources:
             spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound[a])[-1]))
             position = lms.position(a)
-            reach = c.search_sigmas * spread * math.sqrt(self.widest) + self.margin_m
+            reach = c.search_sigmas * spread * math.sqrt(widest) + self.margin_m
             near = [b for b in lms.near(LandmarkKind.POINT, position, reach) if b != a]
             if not near:
                 partners[a] = []
@@ -193,9 +192,9 @@ class MergeFinder:
         loops closed so far say (`DriftScaleBelief`), up to `max_drift_scale` times the
         log's, and what it closes is added to that."""
         c = self.config
-        self.drift_scales = self.drift_belief.relative(odometry_scale)
-        self.widest = float(np.max(self.drift_scales[0]))
-        candidates = self.candidate_pairs(pose_index)
+        drift_scales = self.drift_belief.relative(odometry_scale)
+        widest = float(np.max(drift_scales[0]))
+        candidates = self.candidate_pairs(pose_index, widest)
         if not candidates:
             return []
         context = self.context
@@ -216,7 +215,7 @@ class MergeFinder:
         blocks = covariance.reshape(P, DIM, P, DIM)[np.arange(P), :, np.arange(P), :]
         if drift is not None:  # the widest drift the loop's test allows
             G = drift.reshape(P, DIM, -1)
-            blocks = blocks + (self.widest - 1.0) * (G @ G.transpose(0, 2, 1))
+            blocks = blocks + (widest - 1.0) * (G @ G.transpose(0, 2, 1))
         offsets = np.array([positions[a] - positions[b] for a, b in candidates])
         gates = np.where(
             closes, assoc.chi2_gate(DIM, c.confidence), assoc.chi2_gate(DIM, c.local_confidence)
@@ -226,7 +225,7 @@ class MergeFinder:
             for p in np.flatnonzero(assoc.mahalanobis_squared_batch(offsets, blocks) <= gates)
         ]
         pairs = [candidates[p] for p in kept]
-        differences = [positions[a] - positions[b] for a, b in pairs]
+        differences = offsets[kept]
         loop = [bool(closes[p]) for p in kept]
         if not pairs:
             return []
@@ -251,10 +250,10 @@ class MergeFinder:
             chosen = [pairs[p] for p in group]
             rows = np.concatenate([np.arange(kept[p] * DIM, (kept[p] + 1) * DIM) for p in group])
             closes_loop = any(loop[p] for p in group)
-            scales, log_weights = self.drift_scales if closes_loop else (np.ones(1), np.zeros(1))
+            scales, log_weights = drift_scales if closes_loop else (np.ones(1), np.zeros(1))
             pair_set = PairSet(
                 pairs=chosen,
-                differences=np.array([differences[p] for p in group]),
+                differences=differences[group],
                 covariance=covariance[np.ix_(rows, rows)],
                 log_prior=log_prior[group],
                 loop=np.array([loop[p] for p in group]),

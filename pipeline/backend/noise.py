@@ -18,8 +18,9 @@ direction the rest decides, and if the odometry's true covariance is c Q, delta'
 is E (I - E) + c E^2: along each eigenvector of E (share e), delta's component has variance
 e (1 - e) + c e^2. The windows' likelihood over c is then exact under the model, each window
 also allowed to be an outlier (bent by a wrong association); its maximum is the scale they
-say, and its ratio against the current scale how sure they are (`drift_scale`). A window the landmarks do not pin (e near 0) says nothing, and says it
-quietly; a window across a loop closure (e near 1 along the loop's directions) says much.
+say, and its ratio against the current scale how sure they are (`drift_scale`). A window the
+landmarks do not pin (e near 0) says nothing, and says it quietly; a window across a loop
+closure (e near 1 along the loop's directions) says much.
 A slow odometry bias drifts more over a long window than white noise of the same step sigma:
 the scale found is the one at the window's length.
 

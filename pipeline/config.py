@@ -82,6 +82,7 @@ class MergeConfig:
     search_seeds: int = setting(at_least(0))
     partner_prior: bool
     local_rivals: bool
+    local_detection_noise: bool
     max_partners: int = setting(at_least(1))
     max_landmarks: int = setting(at_least(2))
     drift_scale_weight: float = setting(between(0.0, 1.0))

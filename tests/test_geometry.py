@@ -37,6 +37,27 @@ def test_point_and_measurement_round_trip():
     )
 
 
+def test_world_point_covariance_hand_computed():
+    # Straight ahead at range 10, heading turned 90 degrees: range noise along world y,
+    # bearing noise (10 m lever) along world -x, elevation noise along z.
+    yaw = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    covariance = np.diag([0.01**2, 0.02**2, 0.5**2])
+    C = g.world_point_covariance(yaw, np.array([0.0, 0.0, 10.0]), covariance)
+    np.testing.assert_allclose(C, np.diag([0.1**2, 0.5**2, 0.2**2]), atol=1e-12)
+
+
+def test_world_point_covariance_matches_sampled_detections():
+    rng = np.random.default_rng(3)  # its own, so that the other tests draw what they drew
+    R = gtsam.Rot3.RzRyRx(0.3, -0.2, 1.1).matrix()
+    z = np.array([0.4, -0.1, 12.0])
+    covariance = np.diag([2e-3, 1e-3, 0.3]) ** 2
+    samples = rng.multivariate_normal(z, covariance, size=200_000)
+    points = lie.point_from_bearing_elevation_range(samples) @ R.T
+    np.testing.assert_allclose(
+        np.cov(points.T), g.world_point_covariance(R, z, covariance), rtol=0.03, atol=1e-5
+    )
+
+
 def test_bearing_elevation_range_jacobian_matches_numerical():
     for p in RNG.normal(size=(10, 3)) * 5:
         J = lie.bearing_elevation_range_jacobian(p)

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.backend.association import gaussian_log_density
+from pipeline.backend.association import chi2_gate, gaussian_log_density
 from pipeline.backend.joint_compatibility import (
     PairSet,
     SeededSearch,
@@ -16,7 +16,7 @@ from pipeline.backend.joint_compatibility import (
     grown_pairs,
     pairs_to_merge,
 )
-from pipeline.backend.merges import pair_groups
+from pipeline.backend.merges import pair_groups, with_detection_noise
 from pipeline.backend.noise import DriftScaleBelief
 from pipeline.geometry import skew
 
@@ -138,6 +138,40 @@ def test_max_gains_bound_what_any_pair_adds():
             for p in set(range(4)) - set(subset):
                 added = ps.score([*subset, p]) - ps.score(list(subset))
                 assert added <= gains[p] + 1e-9
+
+
+def test_with_detection_noise_adds_to_its_pairs_blocks_only():
+    covariance = np.arange(81.0).reshape(9, 9)
+    out = with_detection_noise(covariance, np.array([2, 0]), np.array([np.eye(3), 2 * np.eye(3)]))
+    expected = covariance.copy()
+    expected[6:9, 6:9] += np.eye(3)
+    expected[0:3, 0:3] += 2 * np.eye(3)
+    np.testing.assert_array_equal(out, expected)
+    assert covariance[0, 0] == 0.0  # the input is left as it was
+
+
+def test_a_landmark_mapped_twice_passes_the_local_gate_only_with_a_detections_noise():
+    """Each detection of one landmark goes to the nearer of its two estimates: they drift a
+    detection's noise apart, many of the estimates' own sigmas once each holds many."""
+    rng = np.random.default_rng(0)
+    noise = np.diag([0.3, 0.05, 0.05]) ** 2  # one detection's, in the world frame
+    information = np.linalg.inv(noise)
+    gate = chi2_gate(3, 0.999)
+    plain = allowed = 0
+    trials = 100
+    for _ in range(trials):
+        estimates = [np.array([0.3, 0.0, 0.0]), np.array([-0.3, 0.0, 0.0])]
+        held: list[list[np.ndarray]] = [[], []]
+        for z in rng.multivariate_normal(np.zeros(3), noise, size=40):
+            k = int(np.argmin([(z - e) @ information @ (z - e) for e in estimates]))
+            held[k].append(z)
+            estimates[k] = np.mean(held[k], axis=0)
+        difference = estimates[0] - estimates[1]
+        covariance = noise / max(len(held[0]), 1) + noise / max(len(held[1]), 1)
+        plain += difference @ np.linalg.solve(covariance, difference) <= gate
+        allowed += difference @ np.linalg.solve(covariance + noise, difference) <= gate
+    assert plain < 0.2 * trials
+    assert allowed > 0.95 * trials
 
 
 def test_pair_groups_join_shared_landmarks_and_all_loops():

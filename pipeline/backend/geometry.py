@@ -16,6 +16,7 @@ from pipeline.geometry import (
     adjoint,
     bearing_elevation_range,
     bearing_elevation_range_jacobian,
+    point_from_bearing_elevation_range,
     se3_log,
     skew,
     wrap_angle,
@@ -60,6 +61,14 @@ def predict_point_jacobians_batch(
 def world_point_jacobian_pose(R: np.ndarray, p_body: np.ndarray) -> np.ndarray:
     """d(R p_body + t) / d(pose tangent), 3x6: where a measured point lands, moved by the pose."""
     return R @ np.hstack([-skew(p_body), np.eye(3)])
+
+
+def world_point_covariance(R: np.ndarray, z: np.ndarray, covariance: np.ndarray) -> np.ndarray:
+    """Covariance of the world position a point detection z = (bearing, elevation, range)
+    gives from a pose of rotation R, its (b, e, r) `covariance` taken through the inverse
+    measurement model to first order."""
+    G = R @ np.linalg.inv(bearing_elevation_range_jacobian(point_from_bearing_elevation_range(z)))
+    return G @ covariance @ G.T
 
 
 def pose_residual_batch(

@@ -17,6 +17,7 @@ from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
 from pipeline.backend.decisions import MeasurementSpace, in_view
+from pipeline.backend.geometry import world_point_covariance
 from pipeline.backend.joint_compatibility import (
     PairSet,
     difference_covariance,
@@ -34,6 +35,18 @@ DIM = 3  # point landmarks
 def class_agreement(p: np.ndarray, q: np.ndarray) -> float:
     """Probability that two landmarks with class posteriors p and q have the same class."""
     return float(np.dot(p, q))
+
+
+def with_detection_noise(
+    covariance: np.ndarray, pairs: np.ndarray, noise: np.ndarray, dim: int = DIM
+) -> np.ndarray:
+    """The pairs' difference covariance with `noise[k]` (dim x dim) added to pair
+    `pairs[k]`'s own block: a difference that may be off by that much more, independently."""
+    out = covariance.copy()
+    for p, block in zip(pairs, noise, strict=True):
+        rows = slice(p * dim, (p + 1) * dim)
+        out[rows, rows] += block
+    return out
 
 
 def pair_groups(pairs: list[tuple[int, int]], loop: list[bool]) -> list[list[int]]:
@@ -180,6 +193,19 @@ class MergeFinder:
         self._in_view = (total + count, checks + 1)
         return max(1.0, (total + count) / (checks + 1))
 
+    def _latest_detection_noise(self, landmark_id: int, estimates) -> np.ndarray:
+        """The world-frame noise of the landmark's latest detection, from its pose's estimate.
+        Once a landmark is mapped twice, each detection goes to the nearer of the two, and
+        the two estimates settle about one detection's noise apart however many detections
+        they hold: a local pair's test allows that (`local_detection_noise`)."""
+        records = self.context.records_of.get(landmark_id, ())
+        held = [r.measurement for r in records if r.landmark_id == landmark_id]
+        if not held:  # every detection of it switched away: nothing to allow for
+            return np.zeros((DIM, DIM))
+        latest = max(held, key=lambda m: m.pose_index)
+        R, _ = estimates.pose(latest.pose_index)
+        return world_point_covariance(R, latest.vector, latest.covariance)
+
     def _bound(self, landmark_id: int) -> np.ndarray:
         landmark = self.context.landmarks.landmarks[landmark_id]
         if landmark.covariance_bound is None:
@@ -209,6 +235,10 @@ class MergeFinder:
         # a loop, and its pair passes at confidence under the widest drift the test allows.
         covariance = difference_covariance(joint, candidates, slots, DIM)
         closes = np.array([not context.seen_lately(b, pose_index) for _, b in candidates])
+        if c.local_detection_noise and not closes.all():
+            local = np.flatnonzero(~closes)
+            noise = [self._latest_detection_noise(candidates[p][0], estimates) for p in local]
+            covariance = with_detection_noise(covariance, local, np.array(noise))
         sources = np.array([positions[a] for a, _ in candidates])
         drift = drift_directions(sources, closes, covariance)
         P = len(candidates)

@@ -22,6 +22,7 @@ from pipeline.backend.geometry import (
     pose_residual_batch,
     pose_residual_jacobians,
     predict_point_jacobians_batch,
+    world_point_covariance,
     world_point_jacobian_pose,
 )
 from pipeline.backend.hypotheses import EstimateCache
@@ -30,7 +31,6 @@ from pipeline.backend.measurements import Measurement
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import AssociationConfig
 from pipeline.errors import SolverError
-from pipeline.geometry import bearing_elevation_range_jacobian
 
 
 @dataclass(frozen=True)
@@ -122,12 +122,11 @@ def search_radius(
     p_body = measurement.body_point
     Jx = world_point_jacobian_pose(R, p_body)
     if measurement.kind is LandmarkKind.POSE:
-        R_z = measurement.relative_rotation
-        body_cov = R_z @ measurement.covariance[3:, 3:] @ R_z.T
+        R_z = R @ measurement.relative_rotation
+        measured = R_z @ measurement.covariance[3:, 3:] @ R_z.T
     else:
-        Jz = np.linalg.inv(bearing_elevation_range_jacobian(p_body))
-        body_cov = Jz @ measurement.covariance @ Jz.T
-    world_cov = Jx @ pose_covariance @ Jx.T + R @ body_cov @ R.T
+        measured = world_point_covariance(R, measurement.vector, measurement.covariance)
+    world_cov = Jx @ pose_covariance @ Jx.T + measured
     spread = float(np.sqrt(max(np.linalg.eigvalsh(world_cov)[-1], 0.0)))
     return prediction.pose.transformFrom(p_body), sigmas * spread + margin
 

@@ -25,11 +25,17 @@ from pipeline.backend.joint_compatibility import (
     pairs_to_merge,
 )
 from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import BackendContext
 from pipeline.backend.noise import DriftScaleBelief
 from pipeline.config import MergeConfig
 
 DIM = 3  # point landmarks
+# A landmark's detections can split between it and a duplicate only once both hold two or
+# more; one of a single detection carries that detection's noise in its covariance already,
+# and allowing it again merged lone detections into the next car of a row (kitti05-cars,
+# noise x5).
+MIN_SPLIT_DETECTIONS = 2
 
 
 def class_agreement(p: np.ndarray, q: np.ndarray) -> float:
@@ -193,16 +199,17 @@ class MergeFinder:
         self._in_view = (total + count, checks + 1)
         return max(1.0, (total + count) / (checks + 1))
 
+    def _held(self, landmark_id: int) -> list[Measurement]:
+        """The detections now associated with the landmark."""
+        records = self.context.records_of.get(landmark_id, ())
+        return [r.measurement for r in records if r.landmark_id == landmark_id]
+
     def _latest_detection_noise(self, landmark_id: int, estimates) -> np.ndarray:
         """The world-frame noise of the landmark's latest detection, from its pose's estimate.
         Once a landmark is mapped twice, each detection goes to the nearer of the two, and
         the two estimates settle about one detection's noise apart however many detections
         they hold: a local pair's test allows that (`local_detection_noise`)."""
-        records = self.context.records_of.get(landmark_id, ())
-        held = [r.measurement for r in records if r.landmark_id == landmark_id]
-        if not held:  # every detection of it switched away: nothing to allow for
-            return np.zeros((DIM, DIM))
-        latest = max(held, key=lambda m: m.pose_index)
+        latest = max(self._held(landmark_id), key=lambda m: m.pose_index)
         R, _ = estimates.pose(latest.pose_index)
         return world_point_covariance(R, latest.vector, latest.covariance)
 
@@ -235,10 +242,15 @@ class MergeFinder:
         # a loop, and its pair passes at confidence under the widest drift the test allows.
         covariance = difference_covariance(joint, candidates, slots, DIM)
         closes = np.array([not context.seen_lately(b, pose_index) for _, b in candidates])
-        if c.local_detection_noise and not closes.all():
-            local = np.flatnonzero(~closes)
-            noise = [self._latest_detection_noise(candidates[p][0], estimates) for p in local]
-            covariance = with_detection_noise(covariance, local, np.array(noise))
+        if c.local_detection_noise:
+            split = [
+                p
+                for p in np.flatnonzero(~closes)
+                if min(len(self._held(j)) for j in candidates[p]) >= MIN_SPLIT_DETECTIONS
+            ]
+            if split:
+                noise = [self._latest_detection_noise(candidates[p][0], estimates) for p in split]
+                covariance = with_detection_noise(covariance, np.array(split), np.array(noise))
         sources = np.array([positions[a] for a, _ in candidates])
         drift = drift_directions(sources, closes, covariance)
         P = len(candidates)

@@ -25,7 +25,6 @@ from pipeline.backend.joint_compatibility import (
     pairs_to_merge,
 )
 from pipeline.backend.landmarks import LandmarkKind
-from pipeline.backend.measurements import Measurement
 from pipeline.backend.methods.base import BackendContext
 from pipeline.backend.noise import DriftScaleBelief
 from pipeline.config import MergeConfig
@@ -199,17 +198,12 @@ class MergeFinder:
         self._in_view = (total + count, checks + 1)
         return max(1.0, (total + count) / (checks + 1))
 
-    def _held(self, landmark_id: int) -> list[Measurement]:
-        """The detections now associated with the landmark."""
-        records = self.context.records_of.get(landmark_id, ())
-        return [r.measurement for r in records if r.landmark_id == landmark_id]
-
     def _latest_detection_noise(self, landmark_id: int, estimates) -> np.ndarray:
         """The world-frame noise of the landmark's latest detection, from its pose's estimate.
         Once a landmark is mapped twice, each detection goes to the nearer of the two, and
         the two estimates settle about one detection's noise apart however many detections
         they hold: a local pair's test allows that (`local_detection_noise`)."""
-        latest = max(self._held(landmark_id), key=lambda m: m.pose_index)
+        latest = max(self.context.held_detections(landmark_id), key=lambda m: m.pose_index)
         R, _ = estimates.pose(latest.pose_index)
         return world_point_covariance(R, latest.vector, latest.covariance)
 
@@ -246,7 +240,8 @@ class MergeFinder:
             split = [
                 p
                 for p in np.flatnonzero(~closes)
-                if min(len(self._held(j)) for j in candidates[p]) >= MIN_SPLIT_DETECTIONS
+                if min(len(context.held_detections(j)) for j in candidates[p])
+                >= MIN_SPLIT_DETECTIONS
             ]
             if split:
                 noise = [self._latest_detection_noise(candidates[p][0], estimates) for p in split]

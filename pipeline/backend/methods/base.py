@@ -66,13 +66,14 @@ class BackendContext:
         since = pose_index - self.config.merges.recent_keyframes
         return self.last_seen.get(landmark_id, -1) > since
 
+    def held_detections(self, landmark_id: int) -> list[Measurement]:
+        """The detections now associated with the landmark."""
+        records = self.records_of.get(landmark_id, ())
+        return [r.measurement for r in records if r.landmark_id == landmark_id]
+
     def observed_at(self, landmark_id: int) -> set[int]:
         """Pose indices of the detections now associated with the landmark."""
-        return {
-            r.measurement.pose_index
-            for r in self.records_of.get(landmark_id, ())
-            if r.landmark_id == landmark_id
-        }
+        return {m.pose_index for m in self.held_detections(landmark_id)}
 
     def create_landmark(self, m: Measurement) -> int:
         """A new landmark initialised from the detection, with its factor and class evidence."""

@@ -13,7 +13,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pipeline import __version__
 from pipeline.errors import InputError, SolverError, describe_os_error
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
@@ -68,6 +67,20 @@ COMMAND_EXAMPLES = {
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
 """,
 }
+
+
+class _VersionAction(argparse.Action):
+    """`--version`: mmslam's version, its git commit when run from a checkout, and the
+    libraries' versions. Asked for only when given, so that other commands never run git."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="show the versions and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> None:
+        from pipeline.provenance import version_text
+
+        print(version_text())
+        parser.exit(0)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -289,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         parents=[_verbosity(defaults=True)],
     )
-    parser.add_argument("--version", action="version", version=f"mmslam {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     commands = parser.add_subparsers(
         dest="command", required=True, parser_class=_Parser, metavar="COMMAND"
     )

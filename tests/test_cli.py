@@ -274,6 +274,8 @@ def test_run_json_says_how_the_outputs_were_made(tmp_path, good_log, capsys):
     assert status == 0
     record = json.loads((tmp_path / "o" / "run.json").read_text())
     assert record["mmslam_version"] == pipeline.__version__
+    assert set(record["libraries"]) == {"gtsam", "numpy", "opencv", "rerun-sdk", "mcap"}
+    assert "git_commit" in record and "git_dirty" in record
     assert record["command"] == ["mmslam", *args]
     assert record["config"]["method"] == "mm"
     assert record["config"]["backend"]["association"]["chi2_confidence"] == 0.9
@@ -290,7 +292,9 @@ def test_version(capsys):
     with pytest.raises(SystemExit) as info:
         main(["--version"])
     assert info.value.code == 0
-    assert capsys.readouterr().out == f"mmslam {pipeline.__version__}\n"
+    first, second = capsys.readouterr().out.splitlines()
+    assert first.startswith(f"mmslam {pipeline.__version__}")
+    assert second.startswith("python ") and " gtsam " in second
 
 
 @pytest.mark.parametrize("command", sorted(COMMAND_EXAMPLES))

@@ -62,6 +62,7 @@ class VoConfig:
     recovery_features: int = setting(at_least(10))
     recovery_ratio: float = setting(FRACTION)
     pixel_sigma: float = setting(POSITIVE)
+    min_residual_scale: float = setting(FRACTION)
     min_sigma_rotation: float = setting(POSITIVE)
     min_sigma_translation: float = setting(POSITIVE)
     translation_sigma_fraction: float = setting(at_least(0.0))

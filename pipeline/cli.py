@@ -39,10 +39,7 @@ COMMAND_EXAMPLES = {
   mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1
   mmslam simulate indoor-tags --out out/short.mcap --config my-route.toml
 """,
-    "frontend": """examples:
-  mmslam frontend ../shared/data/real/kitti-clip-1 --out out/clip.mcap
-  mmslam frontend out/seq --out out/seq.mcap --images --rrd out/seq.rrd
-""",
+    "frontend": "",  # the layouts, each with an example: frontend_examples()
     "replay": """examples:
   mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh
   mmslam replay out/tags.mcap --method ml --out out/tags-ml --rrd out/tags-ml.rrd
@@ -67,6 +64,22 @@ COMMAND_EXAMPLES = {
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
 """,
 }
+
+
+def frontend_examples() -> str:
+    """`mmslam frontend --help`'s epilog: every layout it reads, what it holds, an example."""
+    from pipeline.datasets import LAYOUTS
+
+    lines = ["layouts (chosen by what SEQUENCE holds), each with an example:"]
+    for name, holds, example in LAYOUTS:
+        lines += [f"  {name}: {holds}", f"    {example}"]
+    lines += [
+        "",
+        "more examples:",
+        "  mmslam frontend out/seq --out out/seq.mcap --images --rrd out/seq.rrd",
+        "  mmslam frontend my_bag.mcap --out out/bag.mcap --calibration calibration.toml",
+    ]
+    return "\n".join(lines) + "\n"
 
 
 class _VersionAction(argparse.Action):
@@ -176,6 +189,9 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
             images=args.images,
             progress=not args.quiet,
             sink=sink,
+            left_topic=args.left_topic,
+            right_topic=args.right_topic,
+            calibration=args.calibration,
         )
     finally:
         if sink is not None:
@@ -286,7 +302,7 @@ def _subcommand(
         name,
         help=help_text,
         description=help_text[0].upper() + help_text[1:] + ".",
-        epilog=COMMAND_EXAMPLES[name],
+        epilog=frontend_examples() if name == "frontend" else COMMAND_EXAMPLES[name],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         parents=[_verbosity(defaults=False)],
     )
@@ -335,12 +351,25 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
 
     frontend = _subcommand(commands, "frontend", "stereo images to a detection log", _cmd_frontend)
-    frontend.add_argument("sequence", type=Path, metavar="SEQUENCE_DIR")
+    frontend.add_argument(
+        "sequence", type=Path, metavar="SEQUENCE",
+        help="a folder (KITTI, EuRoC or plain layout) or a ROS 2 bag (folder or file)",
+    )  # fmt: skip
     frontend.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
     frontend.add_argument(
         "--config", type=Path, metavar="FILE", help="TOML over configs/frontend.toml"
     )
     frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
+    frontend.add_argument(
+        "--left-topic", metavar="TOPIC",
+        help="a bag's left image topic (default: found when the bag has one obvious pair)",
+    )  # fmt: skip
+    frontend.add_argument("--right-topic", metavar="TOPIC", help="a bag's right image topic")
+    frontend.add_argument(
+        "--calibration", type=Path, metavar="FILE",
+        help="a bag's rectified stereo calibration, as the plain layout's calibration.toml "
+        "(default: the bag's CameraInfo)",
+    )  # fmt: skip
     _add_viz_options(frontend)
 
     inspect = _subcommand(

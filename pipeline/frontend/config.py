@@ -17,6 +17,13 @@ IMAGE_FORMATS = ("jpeg", "png")
 
 
 @dataclass(frozen=True)
+class InputConfig:
+    """`[input]`: reading sequences whose left and right frames are paired by their stamps."""
+
+    stereo_stamp_tolerance: float = setting(POSITIVE)
+
+
+@dataclass(frozen=True)
 class ClassConfig:
     num_classes: int = setting(at_least(1))
     tag_confusion_diagonal: float = setting(FRACTION)
@@ -135,6 +142,7 @@ class ObjectDetectorConfig:
 
 @dataclass(frozen=True)
 class FrontendConfig:
+    input: InputConfig
     classes: ClassConfig
     apriltags: AprilTagConfig
     vo: VoConfig

@@ -131,10 +131,12 @@ def write_bag(
     right_offset_ns: int = 0,
     camera_infos: bool = True,
     extra_topics: Sequence[str] = (),
+    infos: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> Path:
     """A ROS 2 bag of the frames: each side's images on its topic, a CameraInfo beside each
     (rectified: P's from the intrinsics), logged at their header stamps. `drop_right` frames
-    have no right image; right stamps are `right_offset_ns` after the left ones."""
+    have no right image; right stamps are `right_offset_ns` after the left ones. `infos`: each
+    side's CameraInfo (K, D, R, P) instead."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     ts = _typestore()
@@ -145,11 +147,11 @@ def write_bag(
     projections = rectified_projections(k)
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         images = [writer.add_connection(t, image_type, typestore=ts) for t in topics]
-        infos = []
+        info_connections = []
         if camera_infos:
             for topic in topics:
                 namespace = topic.rsplit("/", 1)[0]
-                infos.append(
+                info_connections.append(
                     writer.add_connection(
                         f"{namespace}/camera_info", "sensor_msgs/msg/CameraInfo", typestore=ts
                     )
@@ -166,13 +168,15 @@ def write_bag(
                 image = (frames.left, frames.right)[side][index]
                 message = image_message(ts, image, side_stamp, compressed)
                 writer.write(images[side], side_stamp, ts.serialize_cdr(message, image_type))
-                if infos:
-                    info = camera_info(
-                        ts, side_stamp, size, k.camera_matrix, np.zeros(5), np.eye(3),
-                        projections[side],
-                    )  # fmt: skip
+                if info_connections:
+                    K, D, R, P = (
+                        infos[side]
+                        if infos is not None
+                        else (k.camera_matrix, np.zeros(5), np.eye(3), projections[side])
+                    )
+                    info = camera_info(ts, side_stamp, size, K, D, R, P)
                     data = ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo")
-                    writer.write(infos[side], side_stamp, data)
+                    writer.write(info_connections[side], side_stamp, data)
             for connection in others:
                 data = ts.serialize_cdr(String(data="x"), "std_msgs/msg/String")
                 writer.write(connection, stamp, data)

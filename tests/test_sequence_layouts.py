@@ -278,6 +278,28 @@ def test_the_topics_given_are_the_ones_read(tmp_path):
         RosbagSequence(bag, TOLERANCE_S, topics[1], topics[0])
 
 
+def test_raw_bag_images_are_rectified_with_their_camera_info(tmp_path):
+    left, right, right_from_left = raw_pair()
+    expected = stereo_rectification(left, right, right_from_left)
+    infos = [
+        (left.K, np.r_[left.distortion, 0.0], expected.R_left, expected.P_left),
+        (right.K, np.r_[right.distortion, 0.0], expected.R_right, expected.P_right),
+    ]
+    grey = np.tile(np.arange(752, dtype=np.uint8), (480, 1))
+    small = Frames([grey] * 3, [grey] * 3, [0, 10**8, 2 * 10**8], expected.intrinsics("x"))
+    sequence = RosbagSequence(write_bag(tmp_path / "bag", small, "mcap", infos=infos), 0.005)
+    assert sequence.rectification is not None
+    assert sequence.intrinsics.baseline == pytest.approx(0.11, rel=1e-3)
+    assert sequence.intrinsics.fx == pytest.approx(expected.P_left[0, 0], rel=1e-12)
+    rectified_left, _ = expected.apply(grey, grey)
+    np.testing.assert_array_equal(sequence[1][0], rectified_left)
+    assert not np.array_equal(sequence[1][0], grey)
+    # The same camera info beside topics named rectified: the images are taken as they are.
+    topics = ("/stereo/left/image_rect", "/stereo/right/image_rect")
+    bag = write_bag(tmp_path / "rect", small, "sqlite3", topics=topics, infos=infos)
+    assert RosbagSequence(bag, 0.005).rectification is None
+
+
 def test_a_bag_without_a_stereo_pair_names_its_topics(tmp_path, capsys):
     bag = write_bag(
         tmp_path / "bag", frames(), "mcap", topics=("/front/image", "/rear/image"),

@@ -122,6 +122,9 @@ class StereoSequence:
     # The frames' stamps (ns) as the layout gives them, where it gives integers (EuRoC, ROS
     # bags): seconds in a float lose nanoseconds past about 100 days since the epoch.
     exact_stamps_ns: list[int] | None = None
+    # Frames left out for want of a partner of the other camera (layouts paired by stamps).
+    unmatched_left: int = 0
+    unmatched_right: int = 0
 
     def __len__(self) -> int:
         return len(self.left_files)

@@ -67,13 +67,19 @@ class FrontendSummary:
     num_box_detections: int
     vo_lost: int  # keyframes whose motion is a constant-velocity guess
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    unpaired_frames: int = 0  # left or right frames without a partner, left out
 
     def summary_line(self) -> str:
         stages = ", ".join(f"{name} {s:.1f} s" for name, s in self.stage_seconds.items())
+        unpaired = (
+            f", {self.unpaired_frames} frames without a stereo partner left out"
+            if self.unpaired_frames
+            else ""
+        )
         return (
             f"{self.out}: {self.num_poses} poses from {self.num_frames} frames, "
             f"{self.num_tag_detections} tag and {self.num_box_detections} box detections, "
-            f"{self.vo_lost} odometry losses ({stages})"
+            f"{self.vo_lost} odometry losses{unpaired} ({stages})"
         )
 
 
@@ -442,6 +448,7 @@ def run_frontend(
         num_box_detections=sum(len(d) for d in boxes),
         vo_lost=keyframes.lost,
         stage_seconds=seconds,
+        unpaired_frames=sequence.unmatched_left + sequence.unmatched_right,
     )
     log.info("%s", summary.summary_line())
     return summary

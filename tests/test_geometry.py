@@ -7,9 +7,9 @@ import pytest
 from pipeline import geometry as lie
 from pipeline.backend import geometry as g
 from pipeline.backend.factors import (
+    body_point_covariance,
     direction_frame,
     point_measurement_factor,
-    virtual_stereo_covariance,
 )
 from pipeline.log.messages import Detection
 from tests.numerics import numerical_jacobian
@@ -201,21 +201,71 @@ def _factor_and_ours(bearing, elevation, cov, dz):
 # basis flips; (0.0, 0.0) is a planar sensor straight ahead, elevation far tighter than bearing.
 @pytest.mark.parametrize("bearing,elevation", [(0.3, 0.1), (-2.0, -0.4), (3.0, 0.8), (0.0, 0.0)])
 def test_point_factor_weighs_residuals_with_the_whole_detection_covariance(bearing, elevation):
+    """Near the measurement, the factor's error is the detection's own Mahalanobis distance in
+    (bearing, elevation, range), correlations included (they agree to first order: the
+    Cartesian residual's angles scale with the range, so a range error of 1 % changes the
+    angles' weight by 1 %)."""
     # anisotropic and correlated: bearing 0.03, elevation 0.005, range 0.3
     cov = np.array([[9e-4, 3e-5, 0.0], [3e-5, 2.5e-5, 1e-4], [0.0, 1e-4, 0.09]])
     for _ in range(5):
-        dz = RNG.multivariate_normal(np.zeros(3), cov) * 0.3
+        dz = RNG.multivariate_normal(np.zeros(3), cov) * 0.01
         theirs, ours = _factor_and_ours(bearing, elevation, cov, dz)
-        assert theirs == pytest.approx(ours, rel=3e-2)
+        assert theirs == pytest.approx(ours, rel=5e-3)
 
 
-def test_virtual_stereo_covariance_hand_computed():
-    # elevation 60 degrees halves the bearing's angle; range 2 m: u_right adds range / 2
+def test_body_point_covariance_hand_computed():
+    # elevation 60 degrees halves the bearing's span across; range 2 m doubles the angles'
     sb, se, sr = 0.02, 0.03, 0.5
-    mapped = virtual_stereo_covariance(np.pi / 3, 2.0, np.diag([sb**2, se**2, sr**2]))
-    a = (0.5 * sb) ** 2
-    expected = np.array([[a, a, 0.0], [a, a + (sr / 2) ** 2, 0.0], [0.0, 0.0, se**2]])
-    np.testing.assert_allclose(mapped, expected, atol=1e-15)
+    offset = body_point_covariance(np.pi / 3, 2.0, np.diag([sb**2, se**2, sr**2]))
+    np.testing.assert_allclose(offset, np.diag([0.02**2, 0.06**2, 0.25]), atol=1e-15)
+
+
+def cartesian_residual(det: Detection, pose: gtsam.Pose3, landmark: np.ndarray) -> np.ndarray:
+    """The point factor's model written out: R^T (l - t) minus the detected point, whitened by
+    the detection's covariance carried to the point (first order), in the body frame."""
+    z = np.array([det.bearing, det.elevation, det.range])
+    point = lie.point_from_bearing_elevation_range(z)
+    to_point = np.linalg.inv(lie.bearing_elevation_range_jacobian(point))
+    covariance = to_point @ np.reshape(det.covariance, (3, 3)) @ to_point.T
+    whitening = np.linalg.cholesky(np.linalg.inv(covariance)).T
+    return whitening @ (pose.transformTo(landmark) - point)
+
+
+CORRELATED = np.array([[9e-4, 3e-5, 1e-4], [3e-5, 2.5e-5, 1e-4], [1e-4, 1e-4, 0.09]])
+
+
+@pytest.mark.parametrize(
+    "bearing,elevation,range_m",
+    [(0.3, 0.1, 8.0), (-2.0, -0.4, 1.8), (3.0, 0.8, 40.0), (0.0, 0.0, 12.0)],
+)
+def test_point_factor_is_the_cartesian_residual_with_its_jacobians(bearing, elevation, range_m):
+    """Error and Jacobians are those of R^T (l - t) - p whitened by the detection's covariance,
+    near the measurement and metres away from it, behind the sensor included."""
+    det = Detection(0, 1.0, bearing, elevation, range_m, tuple(CORRELATED.ravel()), "bbox")
+    factor = point_measurement_factor(0, 1, det)
+    point = lie.point_from_bearing_elevation_range(np.array([bearing, elevation, range_m]))
+    for offset in (0.1, 3.0, 2.0 * range_m):  # the last puts the landmark behind the pose
+        pose = random_pose()
+        landmark = pose.transformFrom(point + RNG.normal(size=3) * offset / np.sqrt(3))
+        values = gtsam.Values()
+        values.insert(0, pose)
+        values.insert(1, landmark)
+        ours = cartesian_residual(det, pose, landmark)
+        # the orthographic limit is reached to (offset / ORTHOGRAPHIC_DISTANCE_M)
+        assert factor.error(values) == pytest.approx(0.5 * ours @ ours, rel=2e-3)
+        A, _ = factor.linearize(values).jacobian()
+        H_pose = numerical_jacobian(
+            lambda x, lm=landmark: cartesian_residual(det, x, lm),
+            pose,
+            lambda x, d: x.retract(d),
+            6,
+        )
+        H_lm = numerical_jacobian(lambda lm, x=pose: cartesian_residual(det, x, lm), landmark)
+        expected = np.hstack([H_pose, H_lm])
+        # Both whitenings are square roots of the same information: compare A^T A.
+        information = expected.T @ expected
+        assert np.linalg.norm(A.T @ A - information) < 5e-3 * np.linalg.norm(information)
+        assert np.linalg.matrix_rank(A[:, 6:]) == 3
 
 
 def test_direction_frame_looks_along_the_detection():

@@ -13,7 +13,9 @@ way do the same.
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -34,6 +36,26 @@ def gtsam_reason(message: str) -> str:
             break
         head.append(line)
     return " ".join(head) or "unknown error"
+
+
+FALLBACK_KINDS = ("batch", "qr")
+
+
+@dataclass(frozen=True)
+class SolverFallback:
+    """A graph Cholesky refused, and what the solver did: "batch" (solved again in batch, iSAM2
+    started again there) or "qr" (QR factorisation from then on). Each is a bug to find: a
+    valid log is solved without any."""
+
+    update: int  # the iSAM2 update it happened at
+    kind: str
+    reason: str  # GTSAM's explanation, one line
+
+
+def fallback_counts(fallbacks: list[SolverFallback]) -> dict[str, int]:
+    """How many fallbacks of each kind (every kind listed, zeros included)."""
+    counts = Counter(f.kind for f in fallbacks)
+    return {kind: counts[kind] for kind in FALLBACK_KINDS}
 
 
 def relinearization_thresholds(
@@ -82,6 +104,7 @@ class Isam2Solver:
         self._slots: dict[int, int] = {}
         self._next_handle = 0
         self.num_updates = 0
+        self.fallbacks: list[SolverFallback] = []  # in order
 
     def _params(self, factorization: str) -> gtsam.ISAM2Params:
         c = self.config
@@ -157,11 +180,13 @@ class Isam2Solver:
         self._removals = []
 
     def _check_refusal(self, exc: RuntimeError, what: str) -> None:
-        """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried."""
+        """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried;
+        else the batch solve that follows is recorded."""
         reason = gtsam_reason(str(exc))
         if self.factorization == "QR" or "Indeterminate" not in reason:
             raise SolverError(f"{what} failed: {reason}") from exc
         logger.warning("%s: %s; solving the graph again in batch", what, reason)
+        self.fallbacks.append(SolverFallback(self.num_updates, "batch", f"{what}: {reason}"))
 
     def _solve_again(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         """Everything (`_graph`) solved in batch by Levenberg-Marquardt from `theta`, then a
@@ -187,10 +212,13 @@ class Isam2Solver:
 
     def _rebuild_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         try:
-            return self._rebuild("QR", theta)
+            result = self._rebuild("QR", theta)
         except RuntimeError as exc:
             reason = gtsam_reason(str(exc))
             raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+        reason = "Cholesky refused the graph after a batch solve"
+        self.fallbacks.append(SolverFallback(self.num_updates, "qr", reason))
+        return result
 
     def _graph(self, theta: gtsam.Values) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """Every factor in the graph (committed, then pending; removals left out) and the

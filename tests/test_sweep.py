@@ -206,7 +206,7 @@ def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_swe
     shutil.copytree(first, out)
     older = out / "runs/noise0-mis0.1/seed0/ml/metrics.json"
     metrics = json.loads(older.read_text())
-    for key in ("association_one_to_one", "merges", "noise_scales"):
+    for key in ("association_one_to_one", "merges", "noise_scales", "solver_fallbacks"):
         del metrics[key]
     older.write_text(json.dumps(metrics))
 

@@ -205,6 +205,7 @@ NEW_METRICS = {
     },
     "switches": 2,
     "merges": 1,
+    "solver_fallbacks": {"batch": 3, "qr": 0},
     "noise_scales": {
         "odometry": 4.5,
         "measurement": [1.0, 0.5, 2.0],
@@ -232,6 +233,8 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
         "variance_scale_elevation",
         "variance_scale_range",
         "odometry_scale_moves",
+        "fallbacks_batch",
+        "fallbacks_qr",
     } == OPTIONAL
     key = RunKey(Cell(1.0, 0.1), 3, "mm-nh")
     row = row_from_metrics(key, NEW_METRICS)
@@ -247,7 +250,12 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
     scales = (row.variance_scale_bearing, row.variance_scale_elevation, row.variance_scale_range)
     assert scales == (1.0, 0.5, 2.0)
     assert row.odometry_scale_moves == 2
-    older = {k: v for k, v in NEW_METRICS.items() if k not in ("association_one_to_one", "merges")}
+    assert (row.fallbacks_batch, row.fallbacks_qr) == (3, 0)
+    older = {
+        k: v
+        for k, v in NEW_METRICS.items()
+        if k not in ("association_one_to_one", "merges", "solver_fallbacks")
+    }
     older["noise_scales"] = {"odometry": "n/a"}
     old = row_from_metrics(key, older)
     assert all(getattr(old, c) is None for c in OPTIONAL)

@@ -28,6 +28,7 @@ EXAMPLES = """examples:
   mmslam plot out/kitti05.mcap out/kitti05-mmnh --out out/kitti05.png
   mmslam frontend out/seq --out out/seq.mcap
   mmslam sweep small --out out/sweep --workers 2
+  mmslam convert victoria_park.txt --out out/vp.mcap
 
 -v and -q go anywhere on the line; `mmslam COMMAND -h` shows each command's options.
 """
@@ -62,6 +63,14 @@ COMMAND_EXAMPLES = {
 """,
     "plot": """examples:
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
+""",
+    "convert": """examples:
+  mmslam convert .venv/lib/python3.11/site-packages/gtsam/Data/victoria_park.txt --out out/vp.mcap
+  mmslam replay out/vp.mcap --method known --out out/vp-known
+  mmslam replay out/vp.mcap --method mm-nh --out out/vp-mm-nh
+
+The file's landmark ids become each detection's truth_landmark_id: known replays the given
+associations, and every replay's metrics.json scores its associations against them.
 """,
 }
 
@@ -169,6 +178,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         true_covariance=args.true_covariance,
         config_path=args.config,
     )
+    print(summary.summary_line())
+    return 0
+
+
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from data_tools.landmarks2d import convert_landmarks2d, load_landmarks2d_config
+
+    summary = convert_landmarks2d(args.source, args.out, load_landmarks2d_config(args.config))
     print(summary.summary_line())
     return 0
 
@@ -371,6 +388,18 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: the bag's CameraInfo)",
     )  # fmt: skip
     _add_viz_options(frontend)
+
+    convert = _subcommand(
+        commands, "convert", "a 2-D landmark dataset (Victoria Park) to a log", _cmd_convert
+    )
+    convert.add_argument(
+        "source", type=Path, metavar="FILE",
+        help="GTSAM's 2-D landmark text format: ODOMETRY/EDGE2, LANDMARK and BR lines",
+    )  # fmt: skip
+    convert.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    convert.add_argument(
+        "--config", type=Path, metavar="FILE", help="TOML over configs/landmarks2d.toml"
+    )
 
     inspect = _subcommand(
         commands, "inspect", "what a log holds, and whether it is valid", _cmd_inspect

@@ -288,3 +288,15 @@ def test_batched_point_prediction_matches_one_by_one():
         np.testing.assert_allclose(z[k], z1, atol=1e-12)
         np.testing.assert_allclose(H_pose[k], H_pose1, atol=1e-12)
         np.testing.assert_allclose(H_lm[k], H_lm1, atol=1e-12)
+
+
+def test_a_detection_at_the_zenith_keeps_a_span_across_its_line_of_sight():
+    """Straight up, a bearing spans nothing across the line of sight; the span is taken as a
+    bearing's at 1.5 rad, so the covariance stays positive definite and close to the one 86
+    degrees up (straight up, every method's solver fell back)."""
+    cov = np.diag([1e-4, 1e-4, 1e-2])
+    zenith = body_point_covariance(np.pi / 2, 5.0, cov)
+    assert np.linalg.eigvalsh(zenith)[0] == pytest.approx((np.cos(1.5) * 5.0) ** 2 * 1e-4)
+    np.testing.assert_allclose(zenith, body_point_covariance(1.5, 5.0, cov), rtol=1e-12)
+    below = body_point_covariance(1.4, 5.0, cov)  # below 1.5 rad the bearing's own span
+    assert below[0, 0] == pytest.approx((np.cos(1.4) * 5.0) ** 2 * 1e-4, rel=1e-12)

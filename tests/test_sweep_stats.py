@@ -4,7 +4,7 @@ and summary lines, and results.csv rows with and without the newer metrics."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import MISSING, fields, replace
 
 import pytest
 
@@ -25,6 +25,7 @@ from data_tools.sweep.stats import (
     representative_seed,
     rows_of_cell,
     seed_summaries,
+    slowest_run,
 )
 from data_tools.sweep.tables import estimate_text, headline_text, render_tables
 from pipeline.errors import InputError
@@ -285,3 +286,19 @@ def test_a_results_file_from_before_the_newer_columns_is_read(tmp_path):
     path.write_text(f"{header}\n{','.join(values)}\n")
     with pytest.raises(InputError, match="line 2: 'merges' must be int"):
         read_results(path)
+
+
+def test_the_slowest_run_is_measured_against_its_own_cell_and_methods_median():
+    def timed(cell, method, seed, runtime_s):
+        zeros = {f.name: 0 for f in fields(ResultRow) if f.default is MISSING}
+        return ResultRow(**{**zeros, "cell": cell, "method": method, "seed": seed,
+                            "runtime_s": runtime_s})  # fmt: skip
+
+    rows = [timed("a", "known", s, t) for s, t in enumerate([1.0, 1.0, 2.5])]  # 2.5x
+    rows += [timed("a", "mm-nh", s, t) for s, t in enumerate([10.0, 30.0, 12.0])]  # 2.5x too
+    rows += [timed("b", "mm-nh", s, t) for s, t in enumerate([4.0, 13.0, 5.0])]  # 2.6x
+    rows += [timed("c", "ml", 0, 100.0)]  # one seed: no median to measure against
+    slowest = slowest_run(rows)
+    assert (slowest.cell, slowest.method, slowest.seed) == ("b", "mm-nh", 1)
+    assert slowest.ratio == pytest.approx(13.0 / 5.0)
+    assert slowest_run(rows[-1:]) is None

@@ -4,6 +4,8 @@ linearise than Python `CustomFactor`s, which is what keeps mixtures affordable; 
 
 from __future__ import annotations
 
+import math
+
 import gtsam
 import numpy as np
 
@@ -49,14 +51,19 @@ ORTHOGRAPHIC_DISTANCE_M = 1e5
 # (left, up, along): u_left and v move with the offset across the line of sight, u_right with
 # the across and along offsets together (focal length and baseline both the distance).
 _STEREO_FROM_OFFSET = np.array([[1.0, 0.0, 0.0], [1.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+# Near the zenith a bearing spans almost nothing across the line of sight, and a detection's
+# covariance would pin that direction to nothing: its span is taken as at least that of a
+# bearing at 1.5 rad of elevation (86 degrees; straight up, every method's solver fell back).
+MIN_BEARING_SPAN = math.cos(1.5)
 
 
 def body_point_covariance(elevation: float, range_m: float, covariance: np.ndarray) -> np.ndarray:
     """Covariance of a detection's body-frame point along (left, up, along) its direction
     (`direction_frame`), from its (bearing, elevation, range) covariance to first order: the
-    bearing's angle spans cos(elevation) * range metres across, the elevation's range metres
-    up, the range's itself along."""
-    G = np.diag([np.cos(elevation) * range_m, range_m, 1.0])
+    bearing's angle spans cos(elevation) * range metres across (at least MIN_BEARING_SPAN *
+    range), the elevation's range metres up, the range's itself along."""
+    span = max(math.cos(elevation), MIN_BEARING_SPAN)
+    G = np.diag([span * range_m, range_m, 1.0])
     C = G @ np.asarray(covariance, dtype=float) @ G.T
     return 0.5 * (C + C.T)
 

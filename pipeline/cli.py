@@ -15,7 +15,7 @@ from typing import Any
 
 from pipeline.errors import InputError, SolverError, describe_os_error
 
-METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
+METHODS = ("known", "ml", "gpda", "mm", "mm-nh", "dcsam")
 SCENARIOS = ("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
 # Our own loggers: -v shows their debug lines; third-party libraries stay at warnings.
 OWN_LOGGERS = ("pipeline", "data_tools", "mmslam")

@@ -127,6 +127,12 @@ class Isam2Config:
 
 
 @dataclass(frozen=True)
+class DcsamConfig:
+    new_landmark_weight: float = setting(PROBABILITY)
+    max_alternations: int = setting(at_least(1))
+
+
+@dataclass(frozen=True)
 class PriorConfig:
     pose0_sigma_rotation: float = setting(POSITIVE)
     pose0_sigma_translation: float = setting(POSITIVE)
@@ -145,6 +151,7 @@ class Config:
     noise: NoiseConfig
     isam2: Isam2Config
     prior: PriorConfig
+    dcsam: DcsamConfig
 
 
 def load_config(path: str | Path | None = None) -> Config:

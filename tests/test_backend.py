@@ -22,7 +22,7 @@ from tests.synthetic import (
     write_scene,
 )
 
-METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
+METHODS = ("known", "ml", "gpda", "mm", "mm-nh", "dcsam")
 
 
 def run_backend(log_path, method: str, config=None) -> Backend:
@@ -172,7 +172,7 @@ def test_class_posterior_follows_the_reports(tmp_path):
         assert landmark.map_class == j
 
 
-@pytest.mark.parametrize("method", ["gpda", "mm-nh"])
+@pytest.mark.parametrize("method", ["gpda", "mm-nh", "dcsam"])
 def test_same_input_gives_byte_identical_outputs(tmp_path, square_scene, method):
     log = write_scene(tmp_path / "det.mcap", square_scene, seed=5, odom_noise=2.0)
     config = load_config()

@@ -139,17 +139,20 @@ class CandidateScorer:
         confusion: np.ndarray,
         config: AssociationConfig,
         keep_joint: bool = False,
+        wide_gate: bool = False,
     ):
         """`keep_joint`: keep the keyframe's whole joint covariance (`last_joint`) and every
         candidate's residual and Jacobians, for associating the keyframe jointly; the gate is
-        then the wider `joint_candidate_confidence`, since the joint test decides."""
+        then the wider `joint_candidate_confidence`, since the joint test decides. `wide_gate`:
+        that gate without the rest, for a method whose own step decides against a new
+        landmark."""
         self.solver = solver
         self.landmarks = landmarks
         self.confusion = confusion
         self.config = config
         self.keep_joint = keep_joint
         self.confidence = (
-            config.joint_candidate_confidence if keep_joint else config.chi2_confidence
+            config.joint_candidate_confidence if keep_joint or wide_gate else config.chi2_confidence
         )
         self.last_joint: KeyframeCovariance | None = None
 

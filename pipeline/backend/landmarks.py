@@ -104,6 +104,8 @@ class LandmarkMap:
         self._index = {kind: SpatialHash(self.cell_size) for kind in LandmarkKind}
         self._is_pose: list[bool] = []
         self.merged_into: dict[int, int] = {}  # duplicate id -> the landmark it was merged into
+        # Landmarks out of the spatial index while no detection holds them (`withdraw`)
+        self.withdrawn: set[int] = set()
 
     @property
     def next_id(self) -> int:
@@ -140,8 +142,27 @@ class LandmarkMap:
         self._index[landmark.kind].remove(duplicate)
         self.merged_into[duplicate] = survivor
 
+    def withdraw(self, landmark_id: int) -> None:
+        """Take a landmark that no detection holds out of the spatial index, so that it is no
+        detection's candidate, and keep it (a discrete-continuous method may take it back)."""
+        if landmark_id not in self.withdrawn:
+            self._index[self.landmarks[landmark_id].kind].remove(landmark_id)
+            self.withdrawn.add(landmark_id)
+
+    def reinstate(self, landmark_id: int, position: np.ndarray) -> None:
+        """A withdrawn landmark held again, back in the index at `position`."""
+        if landmark_id in self.withdrawn:
+            self.withdrawn.discard(landmark_id)
+            self.move(landmark_id, position)
+
+    def discard(self, landmark_id: int) -> None:
+        """Forget a withdrawn landmark: it is no landmark of the map."""
+        self.withdrawn.remove(landmark_id)
+        del self.landmarks[landmark_id]
+
     def move(self, landmark_id: int, position: np.ndarray) -> None:
-        self._index[self.landmarks[landmark_id].kind].set(landmark_id, position)
+        if landmark_id not in self.withdrawn:
+            self._index[self.landmarks[landmark_id].kind].set(landmark_id, position)
 
     def position(self, landmark_id: int) -> np.ndarray:
         return self._index[self.landmarks[landmark_id].kind].positions[landmark_id]

@@ -85,7 +85,12 @@ class Backend:
         self.context = BackendContext(self.solver, self.landmarks, confusion, config)
         self.method = make_method(method, self.context)
         self.scorer = CandidateScorer(
-            self.solver, self.landmarks, confusion, config.association, self.method.wants_joint
+            self.solver,
+            self.landmarks,
+            confusion,
+            config.association,
+            self.method.wants_joint,
+            wide_gate=getattr(self.method, "wide_gate", False),
         )
         self.merger = (
             MergeFinder(

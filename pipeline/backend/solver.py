@@ -260,6 +260,10 @@ class Isam2Solver:
     def estimate(self) -> gtsam.Values:
         return self.isam.calculateEstimate()
 
+    def estimate_of(self, keys: list[int]) -> gtsam.Values:
+        """The estimates of `keys` only, as Values (to evaluate factors on them)."""
+        return self.isam.calculateEstimate(keys)
+
     def flat_estimates(self, keys: list[int], is_pose3: np.ndarray) -> np.ndarray:
         """Estimates of `keys` (sorted, unique) in one call, as rows [R (9, row-major), t (3)];
         a point's rotation part is zero. `is_pose3[i]` tells a Pose3 from a Point3."""

@@ -75,9 +75,10 @@ class BackendContext:
         """Pose indices of the detections now associated with the landmark."""
         return {m.pose_index for m in self.held_detections(landmark_id)}
 
-    def create_landmark(self, m: Measurement) -> int:
-        """A new landmark initialised from the detection, with its factor and class evidence."""
-        value = m.initial_landmark(self.prediction.pose)
+    def create_landmark(self, m: Measurement, pose: gtsam.Pose3 | None = None) -> int:
+        """A new landmark initialised from the detection seen from `pose` (by default the
+        keyframe's prediction), with its class evidence; its factor is the caller's."""
+        value = m.initial_landmark(self.prediction.pose if pose is None else pose)
         position = value.translation() if hasattr(value, "translation") else value
         landmark = self.landmarks.create(m.kind, position)
         self.solver.insert(L(landmark.id), value)

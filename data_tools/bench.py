@@ -1,7 +1,7 @@
 """`make bench`: speed and memory figures, printed; nothing here asserts anything about time.
 
 Parts (all by default, or `--only backend,mixture,viz,frontend`):
-- backend: known, ml, mm and mm-nh on a `simulate kitti05-cars` log (2,761 poses, ~10,000
+- backend: known, ml, mm, mm-nh and dcsam on a `simulate kitti05-cars` log (2,761 poses, ~10,000
   detections) and on a long aliased city-grid log (`--long-poses`, 10,000 by default): wall
   and CPU time, ratio to known (CPU: the machine may be shared), to the log's real duration,
   back-end time per detection in every tenth of the log and its ratio to known's there, peak
@@ -30,7 +30,7 @@ import numpy as np
 
 from data_tools.bench_memory import peak_kb
 
-METHODS = ("known", "ml", "mm", "mm-nh")
+METHODS = ("known", "ml", "mm", "mm-nh", "dcsam")
 
 
 def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:

@@ -13,6 +13,11 @@ missed associations, one to one; null-hypothesis wins; landmarks per true landma
 time; solver fallbacks (batch solves and QR, summed; each one a bug); and the seeds within 1.5x
 Known DA's RMSE + 0.5 m that are also no worse than ML's (the association issue's target for
 MM + NH).
+
+`--versus METHOD` adds two tables for MM + NH against METHOD (dcsam: issue 37): per sweep and
+method, the mean and worst RMSE, wrong associations, landmarks per true one and the replay
+time with its ratio to Known DA's; then per sweep and over all of them, MM + NH's wins, ties
+and losses against METHOD on the same seeds with the Wilcoxon and sign-test p-values.
 """
 
 from __future__ import annotations
@@ -24,9 +29,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from data_tools.sweep.inference import compare
 from data_tools.sweep.results import RESULTS_NAME, ResultRow, read_results
-from data_tools.sweep.stats import BASELINE, NEAR_FACTOR, NEAR_MARGIN_M, REFERENCE
-from data_tools.sweep.tables import markdown_table, method_name
+from data_tools.sweep.stats import BASELINE, CHAMPION, NEAR_FACTOR, NEAR_MARGIN_M, REFERENCE
+from data_tools.sweep.tables import markdown_table, method_name, p_text
 from pipeline.settings import config_path
 
 logger = logging.getLogger(__name__)
@@ -98,6 +104,86 @@ def suite_table(results: dict[str, list[ResultRow]]) -> str:
     return markdown_table(header, rows)
 
 
+def _short(name: str) -> str:
+    return name.split("-", 1)[1]
+
+
+def versus_methods_table(results: dict[str, list[ResultRow]], methods: Sequence[str]) -> str:
+    """Per sweep and method (those of `methods` it ran): seeds, mean and worst translation
+    RMSE, wrong associations (one to one) and landmarks per true one a run, mean replay time
+    and its ratio to Known DA's mean there."""
+    header = [
+        "sweep", "method", "seeds", "RMSE mean", "worst", "wrong", "landmarks / true",
+        "time s", "x Known DA",
+    ]  # fmt: skip
+    rows = []
+    for name, runs in results.items():
+        known = [r.runtime_s for r in runs if r.method == REFERENCE]
+        for method in methods:
+            mine = [r for r in runs if r.method == method]
+            if not mine:
+                continue
+            rmse = [r.translation_rmse for r in mine]
+            per_true = [r.landmarks_per_true for r in mine]
+            time_s = statistics.fmean(r.runtime_s for r in mine)
+            rows.append(
+                [
+                    _short(name),
+                    method_name(method),
+                    str(len(mine)),
+                    f"{statistics.fmean(rmse):.2f}",
+                    f"{max(rmse):.2f}",
+                    _mean([r.one_to_one_wrong for r in mine]),
+                    "-" if None in per_true else f"{statistics.fmean(per_true):.2f}",
+                    f"{time_s:.1f}",
+                    f"{time_s / statistics.fmean(known):.1f}" if known else "-",
+                ]
+            )
+    return markdown_table(header, rows)
+
+
+def paired_table(results: dict[str, list[ResultRow]], rival: str, ours: str = CHAMPION) -> str:
+    """`ours` against `rival` on translation RMSE, seed by seed: per sweep, then every sweep's
+    seeds together (a tie within 1 cm or 1 %; two-sided p-values, `inference.compare`)."""
+    header = [
+        "sweep", "seeds", f"{method_name(ours)} wins", "ties", "losses", "win rate",
+        "Wilcoxon p", "sign test p",
+    ]  # fmt: skip
+
+    def by_seed(runs: Sequence[ResultRow], method: str, name: str) -> dict:
+        return {(name, r.seed): r.translation_rmse for r in runs if r.method == method}
+
+    pooled_ours: dict = {}
+    pooled_rival: dict = {}
+    rows = []
+    for label, a, b in [
+        *(
+            (_short(name), by_seed(runs, ours, name), by_seed(runs, rival, name))
+            for name, runs in results.items()
+        ),
+        ("all", pooled_ours, pooled_rival),
+    ]:
+        if label != "all":
+            pooled_ours.update(a)
+            pooled_rival.update(b)
+        c = compare(a, b)
+        if not c.pairs:
+            continue
+        rows.append(
+            [
+                label,
+                str(c.pairs),
+                str(c.wins),
+                str(c.ties),
+                str(c.losses),
+                f"{c.wins / c.pairs:.2f}",
+                p_text(c.wilcoxon_p),
+                p_text(c.sign_p),
+            ]
+        )
+    return markdown_table(header, rows)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from data_tools.sweep.sweep import run_sweep
 
@@ -108,6 +194,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--suite", choices=SUITES, default="robust", help="which sweeps")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="these sweeps of the suite")
     parser.add_argument("--report", action="store_true", help="only the table of what is there")
+    parser.add_argument(
+        "--versus", metavar="METHOD", help="also MM + NH against METHOD (e.g. dcsam), two tables"
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     names = suite(args.suite)
@@ -127,6 +216,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if (out / RESULTS_NAME).exists():
             results[name] = read_results(out / RESULTS_NAME)
     print(suite_table(results), end="")
+    if args.versus:
+        methods = [REFERENCE, BASELINE, CHAMPION, args.versus]
+        print()
+        print(versus_methods_table(results, methods), end="")
+        print()
+        print(paired_table(results, args.versus), end="")
     return 0
 
 

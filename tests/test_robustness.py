@@ -2,7 +2,9 @@
 
 import dataclasses
 
-from data_tools.robustness import near, suite, suite_table
+import pytest
+
+from data_tools.robustness import near, paired_table, suite, suite_table, versus_methods_table
 from data_tools.sweep.config import load_sweep_config
 from data_tools.sweep.results import ResultRow
 from pipeline.settings import config_path
@@ -14,12 +16,12 @@ def row(method: str, seed: int, rmse: float, **more) -> ResultRow:
     return ResultRow(**{**values, **more})
 
 
-def test_every_sweep_of_the_suite_loads_with_known_and_ml_beside_mm_nh():
+def test_every_sweep_of_the_suite_loads_with_known_ml_and_dcsam_beside_mm_nh():
     names = suite()
     assert "robust-city" in names and len(names) >= 8
     for name in names:
         config = load_sweep_config(config_path(f"sweeps/{name}.toml"))
-        assert {"known", "ml", "mm-nh"} <= set(config.methods)
+        assert {"known", "ml", "mm-nh", "dcsam"} <= set(config.methods)
 
 
 def test_the_numerics_suite_runs_every_method_and_known_da_over_many_seeds():
@@ -58,3 +60,35 @@ def test_the_table_holds_each_methods_figures_over_its_seeds():
                      "5.0", "4", "1 / 2"]  # fmt: skip
     (known,) = [x for x in table.splitlines() if "Known DA" in x]
     assert known.rstrip(" |").endswith("-")  # Known DA is the reference, never near itself
+
+
+def cells_of(table: str, *needles: str) -> list[str]:
+    (line,) = [x for x in table.splitlines() if all(n in x for n in needles)]
+    return [c.strip() for c in line.strip("|").split("|")]
+
+
+def test_the_versus_table_gives_each_methods_time_against_known_da():
+    rows = [row("known", s, 1.0, runtime_s=2.0 + s, landmarks_per_true=1.0) for s in range(2)]
+    rows += [row("dcsam", 0, 1.0, runtime_s=5.0, landmarks_per_true=1.5, one_to_one_wrong=2)]
+    rows += [row("dcsam", 1, 4.0, runtime_s=7.0, landmarks_per_true=2.5, one_to_one_wrong=6)]
+    table = versus_methods_table({"robust-city": rows}, ["known", "ml", "mm-nh", "dcsam"])
+    # time: 6.0 s against Known DA's 2.5 s
+    assert cells_of(table, "DC-SAM") == [
+        "city", "DC-SAM", "2", "2.50", "4.00", "4.0", "2.00", "6.0", "2.4",
+    ]  # fmt: skip
+    assert cells_of(table, "| Known DA |")[-1] == "1.0"
+    assert "ML" not in table and "MM + NH" not in table  # no runs: no row
+
+
+def test_the_paired_table_counts_wins_per_sweep_and_over_all():
+    city = [row("mm-nh", s, e) for s, e in enumerate([1.0, 1.0, 2.0, 5.0])]
+    city += [row("dcsam", s, e) for s, e in enumerate([2.0, 1.005, 1.0, 9.0])]
+    tags = [row("mm-nh", 0, 0.5), row("dcsam", 0, 0.9), row("dcsam", 1, 0.1)]
+    table = paired_table({"robust-city": city, "robust-tags": tags}, "dcsam")
+    # city: seeds 0 and 3 won, 1 a tie (within 1 cm), 2 lost; tags: only seed 0 in both, won
+    city_cells = cells_of(table, "| city")
+    assert city_cells[:6] == ["city", "4", "2", "1", "1", "0.50"]
+    assert cells_of(table, "| tags")[:6] == ["tags", "1", "1", "0", "0", "1.00"]
+    assert cells_of(table, "| all")[:6] == ["all", "5", "3", "1", "1", "0.60"]
+    # the sign test of 3 wins against 1 loss: 2 x (1 + 4) / 16
+    assert float(cells_of(table, "| all")[7]) == pytest.approx(0.625)

@@ -30,7 +30,14 @@ from data_tools.sweep.stats import (
     summarise_methods,
 )
 
-METHOD_NAMES = {"known": "Known DA", "ml": "ML", "gpda": "GPDA", "mm": "MM", "mm-nh": "MM + NH"}
+METHOD_NAMES = {
+    "known": "Known DA",
+    "ml": "ML",
+    "gpda": "GPDA",
+    "mm": "MM",
+    "mm-nh": "MM + NH",
+    "dcsam": "DC-SAM",
+}
 TRANSLATION_DIGITS = 2
 ROTATION_DIGITS = 4
 # The per-cell table's figures (stats.SEED_FIGURES): heading and digits.

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pipeline.backend.landmarks import SpatialHash
+from pipeline.backend.landmarks import LandmarkKind, LandmarkMap, SpatialHash
 
 
 @pytest.mark.parametrize("radius", [0.5, 4.0, 500.0])  # a few cells, many, wider than the map
@@ -22,3 +22,24 @@ def test_a_query_finds_exactly_the_items_within_its_radius(radius):
     for center in rng.uniform(-20.0, 20.0, size=(20, 3)):
         expected = [i for i in alive if np.linalg.norm(positions[i] - center) <= radius]
         assert index.query(center, radius) == expected
+
+
+def test_a_withdrawn_landmark_is_no_candidate_until_it_is_held_again():
+    """dcsam's landmarks that every detection left: out of the index, kept in the map, moved
+    by the solver without coming back; reinstated where it is now; discarded at the end."""
+    landmarks = LandmarkMap(num_classes=2, cell_size=2.0)
+    a = landmarks.create(LandmarkKind.POINT, np.zeros(3)).id
+    b = landmarks.create(LandmarkKind.POINT, np.ones(3)).id
+    landmarks.withdraw(a)
+    landmarks.withdraw(a)  # twice is once
+    assert landmarks.near(LandmarkKind.POINT, np.zeros(3), 5.0) == [b]
+    landmarks.move(a, np.full(3, 0.5))
+    assert landmarks.near(LandmarkKind.POINT, np.zeros(3), 5.0) == [b]
+    assert a in landmarks.landmarks
+    landmarks.reinstate(a, np.full(3, 3.0))
+    assert landmarks.near(LandmarkKind.POINT, np.full(3, 3.0), 0.1) == [a]
+    landmarks.withdraw(b)
+    landmarks.discard(b)
+    assert sorted(landmarks.landmarks) == [a] and not landmarks.withdrawn
+    with pytest.raises(KeyError):  # only a withdrawn landmark is discarded
+        landmarks.discard(a)

@@ -130,6 +130,7 @@ class Isam2Config:
 class DcsamConfig:
     new_landmark_weight: float = setting(PROBABILITY)
     max_alternations: int = setting(at_least(1))
+    exact_class_variables: int = setting(at_least(0))
 
 
 @dataclass(frozen=True)

@@ -173,6 +173,53 @@ def test_the_class_decides_between_two_landmarks_that_fit_alike():
         assert p[expected] / p[1 - expected] == pytest.approx(9.0)
 
 
+def test_groups_are_the_detections_linked_through_landmarks():
+    def d(*landmarks):
+        return discrete_step.DetectionModes(np.zeros(len(landmarks) + 1), landmarks, np.ones(2))
+
+    # 0 and 2 share landmark 7, 2 and 3 share 9; 1 and 4 stand alone (own landmarks unmade)
+    detections = [d(7, None), d(5, None), d(7, 9, None), d(9, None), d(None)]
+    assert discrete_step.groups(detections) == [[0, 2, 3], [1], [4]]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_by_turns_ends_where_neither_associations_nor_classes_would_change(seed):
+    """A group larger than `exact_class_variables` (0 here): each detection's mode the best
+    given the classes, each class the best given the modes, and no better than the MPE."""
+    rng = np.random.default_rng(seed)
+    confusion = rng.dirichlet(np.ones(3), size=3)
+    detections = []
+    for _ in range(4):
+        candidates = [int(j) for j in rng.choice(4, size=rng.integers(1, 3), replace=False)]
+        costs = rng.normal(scale=2.0, size=len(candidates) + 2)
+        detections.append(
+            discrete_step.DetectionModes(costs, (*candidates, None), confusion[:, rng.integers(3)])
+        )
+    landmarks = discrete_step.landmarks_of(detections)
+    evidence = {j: class_log_evidence(rng.integers(0, 3, size=3), confusion) for j in landmarks}
+    solution = discrete_step.solve(detections, evidence, exact_class_variables=0)
+    modes, classes = solution.modes, solution.classes
+    for d, mode in zip(detections, modes, strict=True):
+        semantic = discrete_step.unary_semantics(d, classes)
+        assert mode == int(np.argmin(d.costs - np.log(semantic)))
+    for j in landmarks:
+        held = [
+            np.log(d.report)
+            for d, mode in zip(detections, modes, strict=True)
+            if mode < d.null and d.landmarks[mode] == j
+        ]
+        assert classes[j] == int(np.argmax(evidence[j] + sum(held, np.zeros(3))))
+
+    def log_probability(modes, classes):
+        value = sum(evidence[j][c] for j, c in classes.items())
+        for d, mode in zip(detections, modes, strict=True):
+            value += math.log(discrete_step.unary_semantics(d, classes)[mode]) - d.costs[mode]
+        return value
+
+    best_modes, best_classes = brute_force(detections, evidence)
+    assert log_probability(modes, classes) <= log_probability(best_modes, best_classes) + 1e-9
+
+
 # ---------------------------------------------------------------- against gtsam.DCSAM
 
 # Modes without their own factor weigh this little in a hybrid factor (GTSAM 4.3 wants every

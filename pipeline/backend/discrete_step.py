@@ -10,6 +10,16 @@ holds what the detections outside the step that j holds say (`class_evidence`). 
 not made yet has a class no other detection shares: its report's best likelihood; the null's is
 the report averaged over classes. Every factor is scaled to a maximum of 1, so that products of
 many stay in range.
+
+The exact MPE couples every detection that may take a landmark with every other that may take
+the same one, through the landmark's class; across an aliased street those chains join many
+landmarks, and eliminating them grows tables exponentially in their number (a city grid's
+log: 10 GB, not done after 20 minutes). So each group of detections linked through landmarks
+is solved exactly (associations eliminated first, then classes) only where it holds at most
+`exact_class_variables` landmarks; a larger group is solved by turns, each exactly given the
+other: the associations given the classes, the classes given the associations, from the
+classes the outside evidence favours, until neither changes (each turn can only raise the
+probability, so it ends), as DC-SAM itself alternates discrete and continuous.
 """
 
 from __future__ import annotations
@@ -102,20 +112,109 @@ def discrete_graph(
     return graph
 
 
-def solve(
+def groups(detections: Sequence[DetectionModes]) -> list[list[int]]:
+    """The detections (by index) linked through landmarks they may both take, each group in
+    order, the groups by their first detection."""
+    parent = list(range(len(detections)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    first_of: dict[int, int] = {}
+    for i, d in enumerate(detections):
+        for j in d.landmarks:
+            if j is None:
+                continue
+            if j in first_of:
+                parent[root(i)] = root(first_of[j])
+            else:
+                first_of[j] = i
+    members: dict[int, list[int]] = {}
+    for i in range(len(detections)):
+        members.setdefault(root(i), []).append(i)
+    return sorted(members.values())
+
+
+def landmarks_of(detections: Sequence[DetectionModes]) -> list[int]:
+    return sorted({j for d in detections for j in d.landmarks if j is not None})
+
+
+def exact(
     detections: Sequence[DetectionModes], class_evidence: Mapping[int, np.ndarray] | None
+) -> tuple[list[int], dict[int, int]]:
+    """The MPE by max-product, the associations eliminated first."""
+    graph = discrete_graph(detections, class_evidence)
+    ordering = gtsam.Ordering()
+    for i in range(len(detections)):
+        ordering.push_back(association_key(i))
+    landmarks = landmarks_of(detections) if class_evidence is not None else []
+    for j in landmarks:
+        ordering.push_back(class_key(j))
+    mpe = graph.maxProduct(ordering).argmax()
+    modes = [int(mpe[association_key(i)]) for i in range(len(detections))]
+    return modes, {j: int(mpe[class_key(j)]) for j in landmarks}
+
+
+def by_turns(
+    detections: Sequence[DetectionModes],
+    class_evidence: Mapping[int, np.ndarray],
+    max_turns: int = 100,
+) -> tuple[list[int], dict[int, int]]:
+    """Associations given classes, then classes given associations, until neither changes."""
+    landmarks = landmarks_of(detections)
+    classes = {j: int(np.argmax(class_evidence[j])) for j in landmarks}
+    modes: list[int] = []
+    with np.errstate(divide="ignore"):  # a report a class never gives rules that mode out
+        logs = [np.log(d.report) for d in detections]
+        for _ in range(max_turns):
+            new_modes = [
+                int(np.argmin(d.costs - np.log(unary_semantics(d, classes)))) for d in detections
+            ]
+            evidence = {j: np.array(class_evidence[j], dtype=float) for j in landmarks}
+            for d, mode, log_report in zip(detections, new_modes, logs, strict=True):
+                j = d.landmarks[mode] if mode < d.null else None
+                if j is not None:
+                    evidence[j] = evidence[j] + log_report
+            new_classes = {j: int(np.argmax(e)) for j, e in evidence.items()}
+            if new_modes == modes and new_classes == classes:
+                break
+            modes, classes = new_modes, new_classes
+    return modes, classes
+
+
+def solve(
+    detections: Sequence[DetectionModes],
+    class_evidence: Mapping[int, np.ndarray] | None,
+    exact_class_variables: int = 8,
 ) -> DiscreteSolution:
     """The MPE of the detections' associations (and, with `class_evidence`, of the classes of
     every landmark among their modes: what the detections outside the step say of each, as
-    log P(reports | c))."""
+    log P(reports | c)); by turns in a group of more than `exact_class_variables` landmarks."""
     if not detections:
         return DiscreteSolution([], {}, [])
-    mpe = discrete_graph(detections, class_evidence).optimize()
-    modes = [int(mpe[association_key(i)]) for i in range(len(detections))]
-    classes = {}
-    if class_evidence is not None:
-        landmarks = {j for d in detections for j in d.landmarks if j is not None}
-        classes = {j: int(mpe[class_key(j)]) for j in sorted(landmarks)}
+    if class_evidence is None:
+        modes, classes = exact(detections, None)
+    else:
+        modes = [0] * len(detections)
+        classes = {}
+        small: list[int] = []
+        for group in groups(detections):
+            members = [detections[i] for i in group]
+            if len(landmarks_of(members)) <= exact_class_variables:
+                small += group
+                continue
+            group_modes, group_classes = by_turns(members, class_evidence)
+            for i, mode in zip(group, group_modes, strict=True):
+                modes[i] = mode
+            classes.update(group_classes)
+        if small:  # every small group at once: they share no variable
+            small_modes, small_classes = exact([detections[i] for i in small], class_evidence)
+            for i, mode in zip(small, small_modes, strict=True):
+                modes[i] = mode
+            classes.update(small_classes)
     with np.errstate(divide="ignore"):  # a report a class never gives rules that mode out
         probabilities = [
             mode_probabilities(d.costs - np.log(unary_semantics(d, classes or None)))

@@ -193,7 +193,7 @@ class DiscreteContinuous(MixtureMethod):
                 costs[mode] += factor.error(values)
             detections.append(discrete_step.DetectionModes(costs, r.mode_landmarks, r.report))
         evidence = self._evidence_outside(records) if self.num_classes > 1 else None
-        return discrete_step.solve(detections, evidence)
+        return discrete_step.solve(detections, evidence, self.config.dcsam.exact_class_variables)
 
     def _values(
         self, records: list[HybridRecord], prediction: PosePrediction | None

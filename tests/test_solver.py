@@ -10,7 +10,7 @@ from gtsam.symbol_shorthand import L, X
 
 from data_tools.scenarios import simulate
 from pipeline.backend.factors import pose_from_message
-from pipeline.backend.solver import Isam2Solver, gtsam_reason
+from pipeline.backend.solver import Isam2Solver, gtsam_reason, landmarks_last
 from pipeline.config import load_config
 from pipeline.errors import SolverError
 from pipeline.log import read_log
@@ -97,6 +97,52 @@ def replace_the_prior(solvers: tuple[Isam2Solver, ...], handles) -> None:
         solver.remove(prior)
         solver.add(gtsam.PriorFactorPoint3(L(0), np.array([2.5, 3.0, 0.0]), NOISE_3))
         solver.update()
+
+
+def wide_pose_then_a_landmark(solver) -> None:
+    """A pose known to 10 m (a long drive's marginal), then in one update the next pose 1 mm
+    from it (odometry) and a landmark seen from both at 0.3 m: eliminated last, the new pose's
+    pivot is its 10 m marginal against its 1 mm diagonal, (1e-3 / 10)^2 < 2^-24."""
+    wide = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-2] * 3 + [10.0] * 3))
+    solver.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), wide))
+    solver.insert(X(0), gtsam.Pose3())
+    solver.update()
+    solver.add(
+        gtsam.BetweenFactorPose3(X(0), X(1), STEP, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3))
+    )
+    solver.insert(X(1), STEP)
+    seen = gtsam.noiseModel.Isotropic.Sigma(3, 0.3)
+    for key, offset in ((X(0), [1.0, 2.0, 0.0]), (X(1), [0.0, 2.0, 0.0])):
+        bearing, distance = gtsam.Unit3(np.array(offset)), float(np.linalg.norm(offset))
+        solver.add(gtsam.BearingRangeFactor3D(key, L(0), bearing, distance, seen))
+    solver.insert(L(0), np.array([1.0, 2.0, 0.0]))
+
+
+def graph_of(factors) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        graph.add(factor)
+    return graph
+
+
+def test_an_update_eliminates_its_landmarks_after_its_poses():
+    """GTSAM's own order (the variables of new factors last, in COLAMD's order) refuses this
+    small graph; the solver's (`landmarks_last`) takes it without a fallback."""
+    config = load_config().isam2
+    default_order = Isam2Solver(config)
+    default_order._incremental = lambda: default_order.isam.update(
+        graph_of(default_order._pending.values()), default_order._values
+    )
+    wide_pose_then_a_landmark(default_order)
+    default_order.update()
+    assert default_order.fallbacks[0].kind == "batch"  # refused
+    solver = Isam2Solver(config)
+    wide_pose_then_a_landmark(solver)
+    groups = landmarks_last(graph_of(solver._pending.values()))
+    assert (groups.at(X(0)), groups.at(X(1)), groups.at(L(0))) == (1, 1, 2)
+    solver.update()
+    assert solver.fallbacks == []
+    np.testing.assert_allclose(solver.point(L(0)), [1.0, 2.0, 0.0], atol=1e-6)
 
 
 def test_an_update_cholesky_refuses_is_solved_again_in_batch_and_cholesky_kept():

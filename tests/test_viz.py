@@ -545,6 +545,38 @@ def test_the_command_line_leaves_nothing_behind_on_bad_input(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def wait_until(condition, what: str, timeout_s: float = 60.0):
+    """The first true value of `condition()`, asked every 50 ms; the test fails if none comes
+    within `timeout_s` (a deadline for a machine under load, not a time the test measures)."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            pytest.fail(f"gave up after {timeout_s:.0f} s waiting for {what}")
+        time.sleep(0.05)
+    return value
+
+
+def accepting(port: int) -> bool:
+    try:
+        socket.create_connection(("127.0.0.1", port), 0.2).close()
+    except OSError:
+        return False
+    return True
+
+
+def received_robot_rows(path: Path, num_poses: int) -> list[dict] | None:
+    """The robot's transforms in the recording a server is saving, once all `num_poses` are
+    in (None before: the file may be missing yet, or end within a message)."""
+    if not path.exists():
+        return None
+    try:
+        rows = read_rows(path)
+    except Exception:  # a recording still being written; Rerun's reader says so in several ways
+        return None
+    robot = data_rows(rows.get(e.ROBOT, []), "Transform3D:translation")
+    return robot if len(robot) >= num_poses else None
+
+
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_streams_to_a_running_viewer(tmp_path):
     """`--connect`: a headless Rerun server saving what it receives stands in for a viewer."""
@@ -564,22 +596,18 @@ def test_streams_to_a_running_viewer(tmp_path):
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), 0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
+        wait_until(lambda: accepting(port), "the Rerun server to listen")
         log_path = write_image_log(tmp_path / "log.mcap")
         sink = RerunSink.open("test", connect=str(port))
         result = replay(log_path, "known", tmp_path / "out", load_config(), sink=sink,
                         progress=False)  # fmt: skip
-        time.sleep(1.0)  # the server writes what it received
+        # the server saves what it receives as it comes: wait until every pose is in
+        robot = wait_until(
+            lambda: received_robot_rows(saved, result.num_poses), "the server to save every pose"
+        )
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=30)
-    robot = data_rows(read_rows(saved)[e.ROBOT], "Transform3D:translation")
     assert [r["pose"] for r in robot] == list(range(result.num_poses))
 
 

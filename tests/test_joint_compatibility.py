@@ -162,7 +162,7 @@ def test_a_landmark_mapped_twice_passes_the_local_gate_only_with_a_detections_no
     for _ in range(trials):
         estimates = [np.array([0.3, 0.0, 0.0]), np.array([-0.3, 0.0, 0.0])]
         held: list[list[np.ndarray]] = [[], []]
-        for z in rng.multivariate_normal(np.zeros(3), noise, size=40):
+        for z in rng.multivariate_normal(np.zeros(3), noise, size=40, method="cholesky"):
             k = int(np.argmin([(z - e) @ information @ (z - e) for e in estimates]))
             held[k].append(z)
             estimates[k] = np.mean(held[k], axis=0)

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from data_tools.bench_frontend import (
+    TAG_PHOTOS,
     shared_non_tag_images,
     shared_tag_photos,
     tag_recall,
@@ -31,6 +32,7 @@ from pipeline.frontend.apriltags import (
     tag_object_points,
 )
 from pipeline.frontend.config import load_frontend_config
+from tests import real_data
 
 DATA = Path(__file__).parent / "data" / "apriltag"
 PHOTOS = sorted(DATA.glob("*.jpg"))
@@ -249,9 +251,7 @@ def test_score_is_the_decision_margin_capped():
 
 # --- the shared real photos (../shared/data/real/apriltag-photos) ----------------------------
 
-needs_real_photos = pytest.mark.skipif(
-    not shared_tag_photos(), reason="../shared/data/real/apriltag-photos is absent"
-)
+needs_real_photos = real_data.needs(TAG_PHOTOS)
 
 
 @needs_real_photos

@@ -22,6 +22,7 @@ from pipeline.datasets.kitti import StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend import objects as ob
 from pipeline.frontend.config import load_frontend_config
+from tests import real_data
 
 # A small network with every layer kind of yolov3-tiny: batch-normed leaky convolutions, 2x2
 # maxpools of stride 2 and of stride 1, two yolo heads, a route back, an upsample and a route
@@ -399,9 +400,7 @@ def test_detector_refuses_what_it_cannot_use(tiny, tmp_path):
 
 # A real KITTI object-benchmark frame (development data, ../shared/data/real): the dark
 # hatchback parked on the right, 10 m ahead, boxed by hand.
-KITTI_FRAME = (
-    Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "kitti-object-frame"
-)
+KITTI_FRAME = real_data.REAL_DATA / "kitti-object-frame"
 KITTI_CAR_BOX = (734.0, 184.0, 906.0, 306.0)
 # yolov3-tiny scores that car 0.95 at the configured input (measured); the paper's threshold is
 # 0.8, and the test asks for 0.5 and a box on the car.
@@ -422,8 +421,7 @@ def kitti_photo() -> np.ndarray:
     import cv2
 
     path = KITTI_FRAME / "left.png"
-    if not path.exists():
-        pytest.skip(f"{path} absent: the development data (../shared/data/real) is not here")
+    real_data.skip_unless_present(path)
     image = cv2.imread(str(path))
     assert image is not None
     return image
@@ -469,9 +467,7 @@ def test_the_stage_ranges_the_car_on_a_shifted_pair(yolo, kitti_photo):
 
 # --- the KITTI object frame of ../shared/data/real, against its LiDAR ------------------------
 
-needs_object_frame = pytest.mark.skipif(
-    not (OBJECT_FRAME / "lidar.bin").exists(), reason="../shared/data/real is absent"
-)
+needs_object_frame = real_data.needs(OBJECT_FRAME / "lidar.bin")
 
 
 @needs_object_frame

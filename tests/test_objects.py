@@ -277,7 +277,8 @@ def test_letterbox_of_a_tall_colour_image():
     image = np.zeros((128, 64, 3), np.uint8)
     image[..., 0] = 255  # blue, in OpenCV's BGR order
     tensor, box = ob.letterbox(image, 64, 64)
-    assert box.scale == 0.5 and (box.pad_x, box.pad_y) == (16, 0)
+    # 64 / 128, computed: equal to round-off
+    assert box.scale == pytest.approx(0.5, rel=1e-12) and (box.pad_x, box.pad_y) == (16, 0)
     assert tensor[0, :, 32, 32] == pytest.approx([0.0, 0.0, 1.0])  # the network wants RGB
     network_box = np.array([[16 + 10 * 0.5, 20 * 0.5, 16 + 30 * 0.5, 60 * 0.5]])
     np.testing.assert_allclose(ob.undo_letterbox(network_box, box, 64, 128), [[10, 20, 30, 60]])
@@ -293,10 +294,10 @@ def test_suppression_keeps_the_best_of_overlapping_boxes_across_classes():
 
 
 def test_inside_fraction_by_hand():
-    assert ob.inside_fraction((2, 2, 4, 4), (0, 0, 10, 10)) == 1.0
+    assert ob.inside_fraction((2, 2, 4, 4), (0, 0, 10, 10)) == pytest.approx(1.0)
     assert ob.inside_fraction((8, 0, 12, 10), (0, 0, 10, 10)) == pytest.approx(0.5)
     assert ob.inside_fraction((0, 0, 10, 10), (8, 0, 12, 10)) == pytest.approx(0.2)
-    assert ob.inside_fraction((20, 20, 30, 30), (0, 0, 10, 10)) == 0.0
+    assert ob.inside_fraction((20, 20, 30, 30), (0, 0, 10, 10)) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_a_box_inside_another_at_its_disparity_is_a_part_of_it():

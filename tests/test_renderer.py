@@ -93,10 +93,12 @@ def test_ray_plane_depth():
     xs, ys = np.array([-0.3, 0.0, 0.4]), np.array([[0.2], [-0.1]])
     assert ray_plane_depth(xs, ys, [0, 0, 5.0], [0, 0, -1.0]) == pytest.approx(np.full((2, 3), 5))
     # The floor y = 1.5 (camera y points down): the ray (0, 0.3, 1) meets it at Z = 5.
-    assert ray_plane_depth(np.array(0.0), np.array(0.3), [0, 1.5, 0], [0, -1.0, 0]) == 5.0
+    depth = ray_plane_depth(np.array(0.0), np.array(0.3), [0, 1.5, 0], [0, -1.0, 0])
+    assert depth == pytest.approx(5.0, rel=1e-12)  # 1.5 / 0.3: round-off only
     # A ray parallel to the floor never meets it; a plane behind the camera gives Z < 0.
     assert np.isinf(ray_plane_depth(np.array(0.0), np.array(0.0), [0, 1.5, 0], [0, -1.0, 0]))
-    assert ray_plane_depth(np.array(0.0), np.array(0.0), [0, 0, -2.0], [0, 0, 1.0]) == -2.0
+    behind = ray_plane_depth(np.array(0.0), np.array(0.0), [0, 0, -2.0], [0, 0, 1.0])
+    assert behind == pytest.approx(-2.0, rel=1e-12)
 
 
 def test_near_plane_clipping_keeps_the_front_part():

@@ -261,7 +261,9 @@ def test_the_null_rate_starts_at_pose_zero(tmp_path):
     sink = RerunSink.open("test", rrd=tmp_path / "late.rrd", config=viz_config(image_every=0))
     replay(log_path, "mm-nh", tmp_path / "out", load_config(), sink=sink, progress=False)
     rates = data_rows(read_rows(tmp_path / "late.rrd")[e.NULL_RATE], "Scalars:scalars")
-    assert [(r["pose"], r["Scalars:scalars"][0]) for r in rates] == [(i, 0.0) for i in range(5)]
+    assert [r["pose"] for r in rates] == list(range(5))
+    # a rate of no nulls: 0 to round-off
+    np.testing.assert_allclose([r["Scalars:scalars"][0] for r in rates], 0.0, rtol=0, atol=1e-12)
 
 
 @pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")

@@ -254,6 +254,7 @@ def test_score_is_the_decision_margin_capped():
 needs_real_photos = real_data.needs(TAG_PHOTOS)
 
 
+@pytest.mark.slow
 @needs_real_photos
 def test_recall_against_libapriltag_at_full_resolution_on_real_photos():
     # 94 photos of an office and a hallway: libapriltag at full resolution finds 236 tags,
@@ -264,6 +265,7 @@ def test_recall_against_libapriltag_at_full_resolution_on_real_photos():
     assert result.extra <= 2
 
 
+@pytest.mark.slow
 @needs_real_photos
 def test_no_tags_on_real_images_without_tags():
     images = shared_non_tag_images()

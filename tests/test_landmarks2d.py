@@ -122,6 +122,8 @@ def test_victoria_park_converts_whole():
     assert ranges.min() > 1.0 and ranges.max() < 100.0
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_a_small_real_dataset_replays_with_its_associations(tmp_path):
     """GTSAM's example.graph (95 poses, 422 bearing-range sightings of 24 landmarks): Known DA
     and MM + NH both end with every association right and no solver fallback."""

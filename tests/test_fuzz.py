@@ -35,6 +35,7 @@ def results(tmp_path_factory):
     return fuzz_logs.run(tmp_path_factory.mktemp("fuzz"))
 
 
+@pytest.mark.slow
 def test_every_mutated_log_is_refused_in_one_line_or_reads_the_same(results):
     assert len(results) >= 300
     kinds = Counter(case.kind for case, _ in results)
@@ -55,6 +56,7 @@ def test_every_mutated_log_is_refused_in_one_line_or_reads_the_same(results):
     print("\nfuzz: " + fuzz_logs.figures(results))
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("case", list(fuzz_logs.edge_cases()), ids=lambda c: c.name)
 @pytest.mark.parametrize("method", ["known", "ml", "mm-nh"])
 def test_values_at_the_bounds_replay(tmp_path, case, method):

@@ -96,8 +96,9 @@ def perturbed(log_or_values, relative: float = 1e-9, *, seed: int, out=None):
     and covariance, every detection's bearing, elevation, range and covariance, and a tag's
     relative pose the same way. Covariances are moved as D C D (still positive definite); what
     is zero stays zero, so a planar log stays planar. Metadata, ground truth, calibration,
-    images, scores and boxes are copied as they are: they are not what the back-end computes
-    with (scores and boxes are the front-end's)."""
+    scores and boxes are copied as they are: they are not what the back-end computes with
+    (scores and boxes are the front-end's); so are images, those of a `DetectionLog` only if
+    it was read with them (a path is)."""
     rng = np.random.default_rng(seed)
     if not isinstance(log_or_values, str | os.PathLike | DetectionLog):
         return _scaled(log_or_values, relative, rng)

@@ -333,6 +333,8 @@ def dead_reckoning_rmse(log_path) -> float:
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("method", ["known", "ml", "mm-nh"])
 def test_a_planar_log_with_stiff_odometry_replays(tmp_path, generous_planar_log, method):
     """Solved without a fallback by every method, within the odometry's own error's reach:
@@ -346,6 +348,7 @@ def test_a_planar_log_with_stiff_odometry_replays(tmp_path, generous_planar_log,
     assert rmse < (1.5 if method == "known" else 4.0) * dead_reckoning_rmse(generous_planar_log)
 
 
+@pytest.mark.e2e
 def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
     """A NaN estimate (a diverged solve) stops the replay with one line, not a traceback from
     wherever the NaN is first used."""
@@ -368,6 +371,8 @@ def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
 
 # Seeds 2, 4 and 6 are where Cholesky refused a graph with the detections measured through a
 # virtual stereo camera (numerics-tags-known runs 31 seeds: make bench, the numerics suite).
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("seed", [2, 4, 6])
 def test_known_association_solves_a_bent_loop_without_a_fallback(tmp_path, seed):
     """indoor-tags, odometry noise x6 stated right: a loop closure's first step bends the

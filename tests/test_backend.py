@@ -60,6 +60,7 @@ def square_scene() -> Scene:
     return Scene(square_loop(20.0, 1.0, laps=1.25), landmarks, np.arange(len(landmarks)) % 2)
 
 
+@pytest.mark.e2e
 def test_known_association_is_exact_on_noise_free_data(tmp_path, square_scene):
     log = write_scene(tmp_path / "exact.mcap", square_scene, odom_noise=0.0, meas_noise=0.0)
     result = replay(log, "known", tmp_path / "out", load_config(), progress=False)
@@ -71,6 +72,7 @@ def test_known_association_is_exact_on_noise_free_data(tmp_path, square_scene):
 
 # Seeds 0 and 4 were the worst of eight: every method's RMSE within 0.26 m, every association
 # right, no landmark lost to another; the bound leaves twice that.
+@pytest.mark.e2e
 @pytest.mark.parametrize("seed", [0, 4])
 @pytest.mark.parametrize("method", METHODS)
 def test_every_method_maps_a_noisy_loop(tmp_path, square_scene, method, seed):
@@ -104,6 +106,7 @@ def mixture_config(selection: str, path=None):
 # stays in that fixed point. The paper's settings choose first by the association weights, then
 # the null wins once the truthful detections have moved the pose; mmslam's defaults choose the
 # keyframe's detections together, and the alias starts a landmark of its own.
+@pytest.mark.e2e
 @pytest.mark.parametrize("settings", ["paper", "default"])
 def test_wrong_loop_closure_accepted_by_ml_is_rejected_by_the_null_hypothesis(tmp_path, settings):
     scene, lookalike, alias = kidnap_scene(alias_seen_before=False)
@@ -134,6 +137,7 @@ def test_wrong_loop_closure_accepted_by_ml_is_rejected_by_the_null_hypothesis(tm
     assert errors["mm-nh"].metrics["association"]["wrong"] == 0
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("selection", MIXTURE_SELECTIONS)
 def test_max_mixture_switches_component_when_the_estimate_moves(tmp_path, selection):
     scene, lookalike, alias = kidnap_scene(alias_seen_before=True, shift=3.0)
@@ -153,6 +157,7 @@ def test_max_mixture_switches_component_when_the_estimate_moves(tmp_path, select
     assert record_at(ml, KIDNAP_POSE, 0).landmark_id == landmark_of_truth(ml)[0]
 
 
+@pytest.mark.e2e
 def test_class_posterior_follows_the_reports(tmp_path):
     confusion = np.array([[0.7, 0.3], [0.3, 0.7]])
     poses = square_loop(8.0, 1.0, laps=0.25)
@@ -172,6 +177,7 @@ def test_class_posterior_follows_the_reports(tmp_path):
         assert landmark.map_class == j
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("method", ["gpda", "mm-nh", "dcsam"])
 def test_same_input_gives_byte_identical_outputs(tmp_path, square_scene, method):
     log = write_scene(tmp_path / "det.mcap", square_scene, seed=5, odom_noise=2.0)
@@ -189,6 +195,7 @@ def test_same_input_gives_byte_identical_outputs(tmp_path, square_scene, method)
     assert a == b
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("method", METHODS)
 def test_keyframes_without_detections_before_the_first_landmark(tmp_path, method):
     landmarks = np.array([[12.0, 2.0, 0.0], [14.0, -2.0, 0.0]])
@@ -240,6 +247,8 @@ def assert_every_odometry_factor_at(backend: Backend, scale: float) -> None:
 
 # Seeds 5 and 9 read the lowest scales of ten at noise x4 (9.4, 7.8; the others 12-22); at
 # noise x1 none of the ten moved.
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("seed", [5, 9])
 @pytest.mark.parametrize("long_window", [0, 40])
 @pytest.mark.parametrize("odom_noise", [1.0, 4.0])
@@ -279,6 +288,8 @@ def assert_moves_lead_from_to(backend: Backend, start: float, end: float) -> Non
     assert all(m.evidence >= n.drift_evidence for m in moves)
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square_scene):
     """Estimation started well above the log's (right) odometry noise: the windows bring the
     scale down, not below the log's own statement, and every odometry factor follows."""
@@ -292,6 +303,8 @@ def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square
 
 # Seeds 3 and 6 were the edges of eight: with the drift allowed, 1.000-1.033 landmarks a tag
 # (6 the most); with the log's statement alone 1.19-1.29 (3 the fewest).
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("seed", [3, 6])
 def test_loops_close_where_the_log_understates_its_drift(tmp_path, seed):
     """400 m of the indoor tag run whose log states the calibrated odometry covariance while

@@ -35,6 +35,7 @@ def results(tmp_path_factory):
     return fuzz_logs.run(tmp_path_factory.mktemp("fuzz"))
 
 
+@pytest.mark.slow
 def test_every_mutated_log_is_refused_in_one_line_or_reads_the_same(results):
     assert len(results) >= 300
     kinds = Counter(case.kind for case, _ in results)
@@ -55,18 +56,10 @@ def test_every_mutated_log_is_refused_in_one_line_or_reads_the_same(results):
     print("\nfuzz: " + fuzz_logs.figures(results))
 
 
-# dcsam at the smallest variance: the detection of bearing variance 1e-12 fits no candidate
-# and holds a landmark of its own, which the next keyframe's detection takes too; Cholesky
-# then refuses the graph near pose 1 (batch, then QR). Known DA, ML and MM + NH put that
-# detection on the landmark pose 0 mapped. Left to the solver's numerics (issue 37's report).
-DCSAM_REFUSED = pytest.mark.xfail(strict=True, reason="Cholesky refuses dcsam's graph there")
-
-
+@pytest.mark.e2e
 @pytest.mark.parametrize("case", list(fuzz_logs.edge_cases()), ids=lambda c: c.name)
 @pytest.mark.parametrize("method", ["known", "ml", "mm-nh", "dcsam"])
-def test_values_at_the_bounds_replay(tmp_path, case, method, request):
-    if method == "dcsam" and case.name == "the smallest variance":
-        request.applymarker(DCSAM_REFUSED)
+def test_values_at_the_bounds_replay(tmp_path, case, method):
     log = tmp_path / "edge.mcap"
     log.write_bytes(case.data)
     err = io.StringIO()

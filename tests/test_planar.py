@@ -75,6 +75,7 @@ def drive_straight(planar: bool, poses: int = 1000) -> Isam2Solver:
     return solver
 
 
+@pytest.mark.slow
 def test_a_long_planar_drive_is_refused_by_cholesky_unless_the_plane_is_stated():
     """Pitch's random walk, integrated along the drive, leaves the newest pose's height some
     4096 times less certain than a step says after about 590 steps: GTSAM's Cholesky refuses a

@@ -223,6 +223,7 @@ def test_projections_of_another_pair_are_refused():
 # --- ROS 2 bags ------------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     ("storage", "compressed"), [("mcap", False), ("sqlite3", True), ("mcap", True)]
 )
@@ -235,6 +236,7 @@ def test_a_bag_gives_the_log_of_the_same_frames(tmp_path, storage, compressed):
     assert_same_log(frontend_log(bag, tmp_path), plain_log())
 
 
+@pytest.mark.e2e
 def test_a_single_mcap_file_with_a_calibration_file(tmp_path):
     bag = write_bag(tmp_path / "bag", frames(), "mcap", camera_infos=False)
     (single,) = bag.glob("*.mcap")
@@ -243,6 +245,7 @@ def test_a_single_mcap_file_with_a_calibration_file(tmp_path):
     assert_same_log(log, plain_log())
 
 
+@pytest.mark.e2e
 def test_a_dropped_right_frame_is_reported_not_mispaired(tmp_path, caplog):
     dropped = 6
     bag = write_bag(tmp_path / "bag", frames(), "sqlite3", drop_right=[dropped])
@@ -361,6 +364,7 @@ def test_a_broken_bag_is_one_line(tmp_path, capsys):
 # --- EuRoC -----------------------------------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_a_euroc_folder_gives_the_log_of_the_same_frames(tmp_path):
     root = write_euroc(tmp_path / "MH_test", frames())
     sequence = open_sequence(root)

@@ -26,6 +26,7 @@ from pipeline.frontend.stereo_vo import (
     refine_pose,
     solve_pnp,
 )
+from tests import real_data
 
 CAMERA = StereoIntrinsics(
     width=320, height=240, fx=260.0, fy=260.0, cx=159.5, cy=119.5, baseline=0.4
@@ -375,9 +376,7 @@ def rendered_demo_sequence():
 
 # --- the real KITTI clip ---------------------------------------------------------------------
 
-needs_real_clip = pytest.mark.skipif(
-    not (REAL_CLIP / "poses.txt").exists(), reason="../shared/data/real/kitti-clip-1 is absent"
-)
+needs_real_clip = real_data.needs(REAL_CLIP / "poses.txt")
 
 
 @needs_real_clip

@@ -53,12 +53,14 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.e2e
 def test_every_view_draws_what_the_run_recorded(runs):
     for _, rrd in runs:
         assert unfed_views(rrd) == []
         assert unseen_entities(rrd) == []
 
 
+@pytest.mark.e2e
 def test_the_views_follow_what_the_log_holds(runs):
     (_, truth), (_, images) = runs
     names = {v.name for v in blueprint(truth)}
@@ -69,6 +71,7 @@ def test_the_views_follow_what_the_log_holds(runs):
     assert names == {"Map", "Legend", "Association events", "Summary", "Left camera"} | PLOTS
 
 
+@pytest.mark.e2e
 def test_the_default_eye_sees_the_whole_run_from_above(runs):
     _, rrd = runs[0]
     (view,) = [v for v in blueprint(rrd) if v.name == "Map"]
@@ -99,6 +102,7 @@ def test_the_default_eye_sees_the_whole_run_from_above(runs):
     assert extent > 0.5 / REPLAY_MAP_ASPECT
 
 
+@pytest.mark.e2e
 def test_the_legend_names_the_colours_of_the_map(runs):
     log, rrd = runs[0]
     rows = read_rows(rrd)
@@ -140,6 +144,7 @@ def test_the_legend_names_the_colours_of_the_map(runs):
         assert np.all((swatches[:, axis] > low) & (swatches[:, axis] < high))
 
 
+@pytest.mark.e2e
 def test_the_event_log_shows_level_and_text_and_the_uncertainty_layer_is_off(runs):
     _, rrd = runs[0]
     views = {v.name: v for v in blueprint(rrd)}

@@ -92,6 +92,7 @@ class View:
     kind: str  # Rerun's class identifier: "3D", "2D", "TimeSeries", ...
     origin: str
     name: str
+    id: str = ""
     query: list[str] = field(default_factory=list)
     # Properties by archetype ("EyeControls3D", "TextLogColumns", ...; overrides by their
     # path under the view, "ViewContents/overrides/world/uncertainty/visualizers"): a row of
@@ -134,6 +135,7 @@ def blueprint(path: Path) -> list[View]:
                 kind=row["ViewBlueprint:class_identifier"][0],
                 origin=row["ViewBlueprint:space_origin"][0],
                 name=row["ViewBlueprint:display_name"][0],
+                id=view_id,
             )
         elif parts[2:] == ["ViewContents"]:
             queries[view_id] = list(row["ViewContents:query"])
@@ -161,6 +163,20 @@ def eye_coordinates(view: View, points) -> tuple:
     v = np.asarray(points, dtype=float) - position
     depth = v @ forward
     return v @ right / depth, v @ up / depth, depth
+
+
+def containers(path: Path) -> list[list[str]]:
+    """Each container of the blueprint: the ids of what it holds, in its order."""
+    reader = rerun_chunk.RrdReader(path)
+    (store,) = reader.blueprints()
+    out = []
+    for chunk in reader.stream(store=store):
+        if chunk.entity_path.startswith("/container/"):
+            batch = chunk.to_record_batch()
+            if "ContainerBlueprint:contents" in batch.schema.names:
+                contents = batch.column("ContainerBlueprint:contents").to_pylist()[0]
+                out.append([c.split("/", 1)[1] for c in contents])
+    return out
 
 
 def blueprint_views(path: Path) -> list[tuple[str, str]]:

@@ -42,7 +42,7 @@ from pipeline.viz import draw
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
 from pipeline.viz.rerun_sink import RerunSink
-from pipeline.viz.stream import viewer_url
+from pipeline.viz.stream import rerun_executable, viewer_url
 from tests.recordings import (
     blueprint_views,
     data_rows,
@@ -781,3 +781,12 @@ def test_viz_config_defaults_and_overrides(tmp_path):
         override.write_text(text)
         with pytest.raises(InputError, match=message):
             load_viz_config(override)
+
+
+@pytest.mark.skipif(rerun_executable() is None, reason="no rerun executable")
+def test_rerun_verifies_a_run_recording(square_run):
+    done = subprocess.run(
+        [rerun_executable(), "rrd", "verify", str(square_run.rrd)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr

@@ -52,38 +52,39 @@ def test_legend_items():
 
 
 def test_legend_board_below_the_map():
-    # a 20 x 10 map in a square view: three columns; the width decides what the eye shows
-    # (20 m), so rows are 20 / 14 m apart and columns 20 / 3 m, centred under the map
+    # a 20 x 10 map in a square view: four columns; the width decides what the eye shows
+    # (20 m), so rows are 20 / 18 m apart and columns 20 / 4 m, centred under the map
+    assert (legend.ROWS_PER_VIEW, legend.board_columns(1.0)) == (18, 4)
     board = legend.legend_board(5, np.array([0.0, 0.0, 1.0]), np.array([20.0, 10.0, 3.0]), 1.0)
-    row, column = 20.0 / 14.0, 20.0 / 3.0
+    row, column = 20.0 / 18.0, 5.0
     np.testing.assert_allclose(
         board.centres,
         [
-            [10.0 - column, -row, 1.0],
-            [10.0, -row, 1.0],
-            [10.0 + column, -row, 1.0],
-            [10.0 - column, -2 * row, 1.0],
-            [10.0, -2 * row, 1.0],
+            [2.5, -row, 1.0],
+            [7.5, -row, 1.0],
+            [12.5, -row, 1.0],
+            [17.5, -row, 1.0],
+            [2.5, -2 * row, 1.0],
         ],
     )
     assert board.half_line == pytest.approx(0.3 * column)
     assert board.shown_height == pytest.approx(20.0)
     # the labels' room below the last row is part of what the eye must see
     assert board.extent[:, 1].min() == pytest.approx(-row * 2.8)
-    # a tall map: its height and the board's rows share what the eye shows, 14 rows of it
+    # a tall map: its height and the board (3 rows, the labels' room) share what the eye
+    # shows, 18 rows of it
     board = legend.legend_board(13, np.zeros(3), np.array([10.0, 100.0, 0.0]), 1.6)
-    rows = math.ceil(13 / legend.board_columns(1.6))
+    assert legend.board_columns(1.6) == 6
     shown = board.shown_height
-    assert legend.board_columns(1.6) == 6 and rows == 3
-    assert shown == pytest.approx(100.0 / (1.0 - (rows + 1.8) / 14.0))
-    assert board.row_spacing == pytest.approx(shown / 14.0)
+    assert shown == pytest.approx(100.0 / (1.0 - 3.8 / 18.0))
+    assert board.row_spacing == pytest.approx(shown / 18.0)
 
 
-@pytest.mark.parametrize("aspect", [0.8, 1.45, 2.5])
+@pytest.mark.parametrize("aspect", [0.8, 1.0, 1.75, 2.5])
 @pytest.mark.parametrize("size", [(300.0, 200.0), (40.0, 400.0), (1.0, 1.0)])
 def test_the_default_eye_sees_the_map_and_its_legend(aspect, size):
     """Every swatch and its label's room inside the view of the eye placed over map and board,
-    rows at least a fifteenth of the view's height apart (the labels stay legible)."""
+    rows a fixed share of the view's height apart (the labels stay legible)."""
     low, high = np.zeros(3), np.array([size[0], size[1], 0.0])
     board = legend.legend_board(14, low, high, aspect)
     points = np.vstack([low, high, board.extent])
@@ -92,7 +93,7 @@ def test_the_default_eye_sees_the_map_and_its_legend(aspect, size):
     for corner in [*board.extent, *board.centres]:
         assert abs(corner[1] - target[1]) <= half_height * (1 + 1e-9)
         assert abs(corner[0] - target[0]) <= half_height * aspect * (1 + 1e-9)
-    assert board.row_spacing >= 2 * half_height / 15.0
+    assert board.row_spacing == pytest.approx(2 * half_height / legend.ROWS_PER_VIEW)
     assert np.all(board.centres[:, 1] < low[1])  # below the map
 
 

@@ -49,17 +49,14 @@ def plot_time(window: int) -> dict:
     }
 
 
-def plot_view(
-    plot: Plot, window: int, *, paths: list[str] | None = None, overrides: dict | None = None
-) -> rrb.TimeSeriesView:
-    """A plot's view: its lines (`paths`, else the plot's own), no legend (the title names
-    the lines), over the whole run or a following window."""
+def plot_view(plot: Plot, window: int) -> rrb.TimeSeriesView:
+    """A plot's view: its lines, no legend (the title names them), over the whole run or a
+    following window."""
     return rrb.TimeSeriesView(
         name=plot.name,
         origin="/",
-        contents=[f"+ {p}" for p in (paths or plot.paths)],
+        contents=[f"+ {p}" for p in plot.paths],
         plot_legend=rrb.PlotLegend(visible=False),
-        overrides=overrides,
         **plot_time(window),
     )
 
@@ -101,14 +98,18 @@ def map_view(
     )
 
 
-def events_view(name: str, origin: str) -> rrb.TextLogView:
+def events_view(name: str, origin: str, contents: list[str] | None = None) -> rrb.TextLogView:
+    """An event log; with `contents` (several runs' logs), each line names its entity."""
     return rrb.TextLogView(
         name=name,
         origin=origin,
+        contents=contents or "$origin/**",
         # The body names its pose: Rerun's timeline column is too narrow to read ("#2...").
         columns=rrb.TextLogColumns(
             timeline_columns=[rrb.encodings.TimelineColumn(e.POSE_TIMELINE, visible=False)],
-            text_log_columns=["loglevel", "body"],
+            text_log_columns=["entitypath", "loglevel", "body"]
+            if contents
+            else ["loglevel", "body"],
         ),
     )
 

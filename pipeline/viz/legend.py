@@ -18,9 +18,9 @@ import numpy as np
 from pipeline.viz import draw
 
 # A board row (a swatch and its label) is this share of the map view's height.
-ROWS_PER_VIEW = 14
-# Columns of swatches by the map view's width over its height: about 150 px a label.
-COLUMNS_PER_ASPECT = 3.8
+ROWS_PER_VIEW = 18
+# Columns of swatches by the map view's width over its height: about 130 px a label.
+COLUMNS_PER_ASPECT = 4.2
 MAX_COLUMNS = 6
 # Rows of space left for the labels below the last row of swatches.
 LABEL_ROOM = 0.8
@@ -94,8 +94,9 @@ def legend_board(count: int, low: np.ndarray, high: np.ndarray, aspect: float) -
     per_view = max(ROWS_PER_VIEW, rows + 6)
     width, height = high[0] - low[0], high[1] - low[1]
     # The height the eye shows: the map's width at this aspect, or the map's height plus the
-    # board (a gap row, its rows, the labels' room), each row 1 / per_view of it.
-    share = (rows + 1 + LABEL_ROOM) / per_view
+    # board (its rows, the first a row below the map, and the labels' room below the last),
+    # each row 1 / per_view of it.
+    share = (rows + LABEL_ROOM) / per_view
     shown = max(width / aspect, height / (1.0 - share), 2 * draw.MIN_VIEW_HALF_HEIGHT)
     spacing = shown / per_view
     column_spacing = shown * aspect / columns

@@ -25,12 +25,14 @@ class Series:
 class Plot:
     title: str
     series: tuple[Series, ...]
+    # the title names each line's colour (False where the layout does it elsewhere)
+    colours_in_title: bool = True
 
     @property
     def name(self) -> str:
         """The view's title: what is plotted, and which colour is which line where there are
         several (the line's name up to any parenthesis: its full name shows on hover)."""
-        if len(self.series) == 1:
+        if len(self.series) == 1 or not self.colours_in_title:
             return self.title
         return f"{self.title}: " + ", ".join(
             f"{s.name.split(' (')[0]} {s.colour}" for s in self.series

@@ -3,6 +3,7 @@ the run goes and completed with the metrics at the end. No Rerun here."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,4 +55,29 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
         "",
         f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
     ]
+    return "\n".join(lines)
+
+
+def comparison_markdown(results: Sequence[Any]) -> str:
+    """A table of several runs of one log (`pipeline.replay.ReplayResult`s), a row a method:
+    landmarks, errors and associations against ground truth where the log has it, time."""
+    with_truth = any(r.metrics for r in results)
+    head = "| method | landmarks |"
+    rule = "|---|---|"
+    if with_truth:
+        head += " RMSE (m) | max (m) | correct | wrong | null |"
+        rule += "---|---|---|---|---|"
+    lines = [head + " back-end (s) |", rule + "---|"]
+    for r in results:
+        row = f"| **{r.method}** | {r.num_landmarks} |"
+        if with_truth:
+            if r.metrics:
+                t, a = r.metrics["translation_error_m"], r.metrics["association"]
+                row += (
+                    f" {t['rmse']:.3f} | {t['max']:.3f} | {a['correct']} | {a['wrong']} |"
+                    f" {a['null']} |"
+                )
+            else:
+                row += " – | – | – | – | – |"
+        lines.append(row + f" {r.runtime_s:.1f} |")
     return "\n".join(lines)

@@ -5,6 +5,7 @@ fit, hypothesis colours, the plots' titles, the event log's lines and levels, th
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import pytest
 from pipeline.backend.hypotheses import NULL
 from pipeline.log import Detection
 from pipeline.viz import draw, events, labels, legend, plots
-from pipeline.viz.summary import RunState, summary_markdown
+from pipeline.viz.summary import RunState, comparison_markdown, summary_markdown
 
 
 def test_the_eye_above_a_map_sees_all_of_it():
@@ -111,6 +112,23 @@ def test_labels_that_would_cover_others_are_left_out():
     assert labels.label_box(300.0) == (labels.LABEL_PX[0] / 2, labels.LABEL_PX[1] / 2)
 
 
+def test_a_keyframes_labels_winners_first():
+    # detection 0 chose L1 over L2; detection 1 chose L3; the pose at the origin
+    H = draw.Hypothesis
+    hypotheses = [H(0, 1, 0.7, True, False), H(0, 2, 0.3, False, False), H(1, 3, 0.9, True, False)]
+    centres = [np.array([10.0, 0.0, 0.0]), np.array([10.0, 0.5, 0.0]), np.array([0.0, 10.0, 0.0])]
+    strips = [np.array([np.zeros(3), centres[j]]) for j in (0, 1, 2)]
+    # labels 4 m by 1 m: L2 is under L1's label, the lines' middles (5, 0), (5, 0.25), (0, 5)
+    # are clear of the landmarks; L1's line and L2's line cover each other, L2's is a loser's
+    landmarks, lines = labels.keyframe_labels(hypotheses, strips, [1, 2, 3], centres, (4.0, 1.0))
+    assert landmarks.tolist() == [True, False, True]
+    assert lines.tolist() == [True, False, True]
+    # a larger box: L3's line (0, 5) and L3 (0, 10) are 5 m apart, under a 6 m label: the
+    # landmark is kept, the line left out
+    landmarks, lines = labels.keyframe_labels(hypotheses, strips, [1, 2, 3], centres, (7.0, 6.0))
+    assert landmarks.tolist() == [True, False, True] and lines.tolist() == [False, False, False]
+
+
 def test_a_wrong_winner_is_red_and_the_null_hypothesis_is_not():
     right = draw.Hypothesis(0, 4, 0.9, winner=True, new_landmark=False)
     wrong = draw.Hypothesis(0, 4, 0.9, winner=True, new_landmark=False, wrong=True)
@@ -182,3 +200,20 @@ def test_summary_while_running_and_at_the_end():
     assert "| rotation (rad) | 0.5571 | 0.1276 | 0.0257 | 0.2161 |" in text
     assert text.endswith("Associations: 686 correct, 8 wrong, 13 null.")
     assert "error" not in summary_markdown(final)  # no ground truth: counts only
+
+
+def test_the_table_of_a_comparison():
+    Run = namedtuple("Run", "method num_landmarks runtime_s metrics")
+    rows = [Run("ml", 553, 2.84, METRICS), Run("mm-nh", 265, 49.46, None)]
+    assert comparison_markdown(rows).splitlines() == [
+        "| method | RMSE (m) | wrong | null | landmarks | correct | max (m) | back-end (s) |",
+        "|---|---|---|---|---|---|---|---|",
+        "| **ml** | 6.603 | 8 | 13 | 553 | 686 | 18.578 | 2.8 |",
+        "| **mm-nh** | – | – | – | 265 | – | – | 49.5 |",
+    ]
+    # without ground truth: what every run has
+    assert comparison_markdown([Run("ml", 9, 1.0, None)]).splitlines() == [
+        "| method | landmarks | back-end (s) |",
+        "|---|---|---|",
+        "| **ml** | 9 | 1.0 |",
+    ]

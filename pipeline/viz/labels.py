@@ -7,8 +7,12 @@ hovering and selecting where the entity allows it. Pure, no Rerun.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from pipeline.viz.draw import Hypothesis
 
 # A label as the viewer draws it (px): about 14 characters wide, one line high, below its
 # anchor and centred on it.
@@ -45,3 +49,30 @@ def spaced(anchors: np.ndarray, order: Sequence[int], box: tuple[float, float]) 
         chosen.append(k)
         shown[k] = True
     return shown
+
+
+def keyframe_labels(
+    hypotheses: Sequence[Hypothesis],
+    strips: Sequence[np.ndarray],
+    weighed: Sequence[int],
+    centres: Sequence[np.ndarray],
+    box: tuple[float, float],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Which labels of a keyframe's association view to show: of the landmarks `weighed` (at
+    `centres`), and of the hypothesis lines (`strips`, one a hypothesis; a line's label sits at
+    its middle). The chosen landmarks first, then the winners' lines (only winners' lines are
+    labelled), then the other candidates by their best weight. (landmarks', lines') bools."""
+    anchors = np.array(
+        [*centres, *(np.mean(strip, axis=0) for strip in strips)], dtype=float
+    ).reshape(-1, 3)
+    chosen = {h.landmark_id for h in hypotheses if h.winner}
+    best: dict[int, float] = {}
+    for h in hypotheses:
+        best[h.landmark_id] = max(best.get(h.landmark_id, 0.0), h.weight)
+    winners = [k for k, j in enumerate(weighed) if j in chosen]
+    lines = [len(weighed) + n for n, h in enumerate(hypotheses) if h.winner]
+    others = sorted(
+        (k for k, j in enumerate(weighed) if j not in chosen), key=lambda k: -best[weighed[k]]
+    )
+    shown = spaced(anchors, [*winners, *lines, *others], box)
+    return shown[: len(weighed)], shown[len(weighed) :]

@@ -637,10 +637,11 @@ class RerunSink:
         weighed = sorted({h.landmark_id for h in flat if h.landmark_id != NULL})
         named = [self._landmark_label(landmarks, j) for j in weighed]
         centres = [points[j][9:] for j in weighed]
-        shown = self._fitting_labels(flat, strips, weighed, centres)
+        landmarks_shown, lines_shown = labels.keyframe_labels(
+            flat, strips, weighed, centres, self._label_box
+        )
         if flat:
             classes = [r.measurement.detection.class_id for r in records]
-            lines_shown = shown[len(weighed) :]
             self.rec.log(
                 e.HYPOTHESES,
                 rr.LineStrips3D(
@@ -672,7 +673,7 @@ class RerunSink:
                     class_ids=classes,
                     labels=[
                         label if ok else ""
-                        for (_, label), ok in zip(named, shown[: len(weighed)], strict=True)
+                        for (_, label), ok in zip(named, landmarks_shown, strict=True)
                     ],
                     radii=rr.Radius.ui_points(6.0),
                     show_labels=True,
@@ -698,29 +699,6 @@ class RerunSink:
                 )
             self.rec.log(e.CANDIDATES, *parts)
         self._clear_unless(e.CANDIDATES, bool(weighed))
-
-    def _fitting_labels(
-        self,
-        flat: list[draw.Hypothesis],
-        strips: list[np.ndarray],
-        weighed: list[int],
-        centres: list[np.ndarray],
-    ) -> np.ndarray:
-        """Which labels to show, candidates' then lines' (bool each): a line's label sits at
-        its middle, a landmark's at its point; only winners' lines are labelled."""
-        anchors = np.array(
-            [*centres, *(strip.mean(axis=0) for strip in strips)], dtype=float
-        ).reshape(-1, 3)
-        chosen = {h.landmark_id for h in flat if h.winner}
-        best: dict[int, float] = {}
-        for h in flat:
-            best[h.landmark_id] = max(best.get(h.landmark_id, 0.0), h.weight)
-        winners = [k for k, j in enumerate(weighed) if j in chosen]
-        lines = [len(weighed) + n for n, h in enumerate(flat) if h.winner]
-        others = sorted(
-            (k for k, j in enumerate(weighed) if j not in chosen), key=lambda k: -best[weighed[k]]
-        )
-        return labels.spaced(anchors, [*winners, *lines, *others], self._label_box)
 
     def _event(self, event: events.Event | None) -> None:
         if event is not None:

@@ -15,7 +15,7 @@ HAVE := $(call minor,$(BIN)/python)
 # Python is rebuilt. Otherwise any working .venv of a supported Python is kept.
 ASKED := $(filter command line environment,$(origin PYTHON))
 
-.PHONY: demo test bench lint clean models
+.PHONY: demo test bench lint clean models docs
 
 $(STAMP): pyproject.toml
 	@if [ -d $(VENV) ] && { [ -z "$(filter $(PYTHONS),$(HAVE))" ] || \
@@ -46,6 +46,12 @@ test: models
 
 bench: $(STAMP)
 	$(BIN)/python -m data_tools.bench
+
+# The README's and docs' Rerun pictures from the current code (docs/rerun/, with the commit
+# they were made at). Needs a virtual display and a software Vulkan driver: on Debian,
+# apt-get install xvfb mesa-vulkan-drivers libgl1-mesa-dri libegl1 libvulkan1. A few minutes.
+docs: $(STAMP)
+	$(BIN)/python -m data_tools.rerun_docs
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix .

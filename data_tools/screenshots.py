@@ -33,6 +33,8 @@ START_TIMEOUT_S = 60.0
 LOAD_TIMEOUT_S = 300.0
 # Frames the viewer renders after a change before the picture is taken (it draws lazily).
 SETTLE_FRAMES = 10
+# Times a call is made again when the viewer, busy, did not answer in time.
+BUSY_RETRIES = 20
 # Where the pointer waits while pictures are taken: the empty top bar (a pointer over a view
 # shows a tooltip).
 POINTER_PARK = {"x": 1100.0, "y": 16.0}
@@ -140,12 +142,20 @@ class ViewerControl:
 
     def tool(self, name: str, **arguments) -> str:
         """Call one of the server's tools; its answer (the first text: the viewer's own log
-        lines since the last call may follow it)."""
-        result = self._request("tools/call", {"name": name, "arguments": arguments})
-        texts = [c.get("text", "") for c in result.get("content", []) if c.get("type") == "text"]
-        if result.get("isError"):
-            raise ScreenshotError(f"{name}: {' '.join(texts)}")
-        return texts[0] if texts else ""
+        lines since the last call may follow it). A viewer busy loading a large recording may
+        not answer in time: asked again, a few times."""
+        for attempt in range(BUSY_RETRIES + 1):
+            result = self._request("tools/call", {"name": name, "arguments": arguments})
+            texts = [
+                c.get("text", "") for c in result.get("content", []) if c.get("type") == "text"
+            ]
+            if not result.get("isError"):
+                return texts[0] if texts else ""
+            message = " ".join(texts)
+            if "did not answer in time" not in message or attempt == BUSY_RETRIES:
+                raise ScreenshotError(f"{name}: {message}")
+            log.info("%s: the viewer is busy; asking again", name)
+        raise AssertionError("unreachable")
 
     def state(self) -> dict:
         answer = self.tool("rerun_get_state")

@@ -38,7 +38,7 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.replay import ReplayResult, replay
-from pipeline.viz import draw
+from pipeline.viz import draw, marks
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
 from pipeline.viz.rerun_sink import RerunSink
@@ -393,6 +393,9 @@ def test_wrong_associations_are_red_and_counted(tmp_path):
     np.testing.assert_allclose(strip[0], final.poses[KIDNAP_POSE].translation(), atol=1e-6)
     np.testing.assert_allclose(strip[1], final.landmark_values[lookalike], atol=1e-6)
     assert latest(rows[e.WRONG], "LineStrips3D:colors") == [red]
+    (ring,) = latest(rows[e.WRONG], "Points3D:positions")  # round the landmark, just below
+    np.testing.assert_allclose(ring, np.subtract(strip[1], [0, 0, marks.RING_DEPTH_M]), atol=1e-6)
+    assert latest(rows[e.WRONG], "Points3D:colors") == [red]
     counts = [
         (r["pose"], r["Scalars:scalars"][0])
         for r in data_rows(rows[e.WRONG_COUNT], "Scalars:scalars")
@@ -421,7 +424,8 @@ def test_merges_are_marked_where_they_happen(square_run):
                 if r["pose"] <= pose
             ][-1]
             np.testing.assert_allclose(strip[1], at["Points3D:positions"][0], atol=0.1)
-    assert latest(rows[e.MERGES], "LineStrips3D:colors") == [int(draw.packed_rgba(draw.MERGE_RGB))]
+    (colour,) = latest(rows[e.MERGES], "LineStrips3D:colors")
+    assert colour >> 8 == int(draw.packed_rgba(draw.MERGE_RGB)) >> 8  # half transparent
     totals = data_rows(rows[e.MERGE_COUNT], "Scalars:scalars")
     assert totals[-1]["Scalars:scalars"] == [square_run.final.merges]
 

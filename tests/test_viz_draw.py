@@ -54,10 +54,10 @@ def test_legend_items():
 
 def test_legend_board_below_the_map():
     # a 20 x 10 map in a square view: four columns; the width decides what the eye shows
-    # (20 m), so rows are 20 / 18 m apart and columns 20 / 4 m, centred under the map
-    assert (legend.ROWS_PER_VIEW, legend.board_columns(1.0)) == (18, 4)
+    # (20 m), so rows are 20 / 16 m apart and columns 20 / 4 m, centred under the map
+    assert (legend.ROWS_PER_VIEW, legend.board_columns(1.0)) == (16, 4)
     board = legend.legend_board(5, np.array([0.0, 0.0, 1.0]), np.array([20.0, 10.0, 3.0]), 1.0)
-    row, column = 20.0 / 18.0, 5.0
+    row, column = 20.0 / 16.0, 5.0
     np.testing.assert_allclose(
         board.centres,
         [
@@ -73,12 +73,12 @@ def test_legend_board_below_the_map():
     # the labels' room below the last row is part of what the eye must see
     assert board.extent[:, 1].min() == pytest.approx(-row * 2.8)
     # a tall map: its height and the board (3 rows, the labels' room) share what the eye
-    # shows, 18 rows of it
+    # shows, 16 rows of it
     board = legend.legend_board(13, np.zeros(3), np.array([10.0, 100.0, 0.0]), 1.6)
     assert legend.board_columns(1.6) == 6
     shown = board.shown_height
-    assert shown == pytest.approx(100.0 / (1.0 - 3.8 / 18.0))
-    assert board.row_spacing == pytest.approx(shown / 18.0)
+    assert shown == pytest.approx(100.0 / (1.0 - 3.8 / 16.0))
+    assert board.row_spacing == pytest.approx(shown / 16.0)
 
 
 @pytest.mark.parametrize("aspect", [0.8, 1.0, 1.75, 2.5])

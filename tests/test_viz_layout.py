@@ -147,7 +147,8 @@ def test_the_legend_names_the_colours_of_the_map(runs):
         assert latest(rows[path], "LineStrips3D:colors") == [colour[name]]
     # the marks the run made, each in its legend's colour
     assert data_rows(rows[e.MERGES], "LineStrips3D:strips")  # this run merged duplicates
-    assert latest(rows[e.MERGES], "LineStrips3D:colors") == [colour["merge"]]
+    (merge,) = latest(rows[e.MERGES], "LineStrips3D:colors")
+    assert merge >> 8 == colour["merge"] >> 8  # the colour, half transparent
     # landmark classes: the annotation context's colours, and landmarks coloured by it alone
     (context,) = rows["/"][0]["AnnotationContext:context"]
     assert [entry["class_description"]["info"]["label"] for entry in context] == list(

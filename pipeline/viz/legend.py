@@ -18,7 +18,7 @@ import numpy as np
 from pipeline.viz import draw
 
 # A board row (a swatch and its label) is this share of the map view's height.
-ROWS_PER_VIEW = 18
+ROWS_PER_VIEW = 16
 # Columns of swatches by the map view's width over its height: about 130 px a label.
 COLUMNS_PER_ASPECT = 4.2
 MAX_COLUMNS = 6

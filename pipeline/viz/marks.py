@@ -14,6 +14,10 @@ from pipeline.viz import draw
 from pipeline.viz import entities as e
 from pipeline.viz.legend import Board, LegendItem
 
+# How far below a wrongly associated landmark its red ring is drawn (m): behind the landmark's
+# own dot from above, near enough to stay round it.
+RING_DEPTH_M = 0.1
+
 
 def legend_swatches(items: Sequence[LegendItem], board: Board) -> list[tuple[str, object]]:
     """(entity, archetype) of the legend's swatches, each labelled: a short line for lines, a
@@ -46,16 +50,25 @@ def legend_swatches(items: Sequence[LegendItem], board: Board) -> list[tuple[str
 
 def wrong_lines(
     pose_positions: np.ndarray, landmark_positions: np.ndarray, labels: Sequence[str]
-) -> rr.LineStrips3D:
-    """A red line from each wrongly associated detection's pose to its landmark (N, 3 each)."""
+) -> list:
+    """A red line from each wrongly associated detection's pose to its landmark (N, 3 each),
+    and a red ring round that landmark (a larger red dot just below it: a short line is lost
+    in a map seen whole)."""
     strips = np.stack([pose_positions, landmark_positions], axis=1)
-    return rr.LineStrips3D(
-        strips,
-        colors=draw.packed_rgba(draw.WRONG_RGB)[None],
-        radii=rr.Radius.ui_points(4.0),
-        labels=list(labels),
-        show_labels=False,  # hundreds in a broken map: hover for which detection
-    )
+    return [
+        rr.LineStrips3D(
+            strips,
+            colors=draw.packed_rgba(draw.WRONG_RGB)[None],
+            radii=rr.Radius.ui_points(4.0),
+            labels=list(labels),
+            show_labels=False,  # hundreds in a broken map: hover for which detection
+        ),
+        rr.Points3D(
+            landmark_positions - [0.0, 0.0, RING_DEPTH_M],
+            colors=draw.packed_rgba(draw.WRONG_RGB)[None],
+            radii=rr.Radius.ui_points(9.0),
+        ),
+    ]
 
 
 def null_decisions(points: np.ndarray, labels: Sequence[str]) -> rr.Points3D:
@@ -70,11 +83,12 @@ def null_decisions(points: np.ndarray, labels: Sequence[str]) -> rr.Points3D:
 
 
 def merges(duplicates: np.ndarray, survivors: np.ndarray, labels: Sequence[str]) -> rr.LineStrips3D:
-    """A line from each merged duplicate (where it was last drawn) to its survivor."""
+    """A line from each merged duplicate (where it was last drawn) to its survivor: thin and
+    half transparent, since a long run's merges pile up (a thousand on kitti05-cars)."""
     return rr.LineStrips3D(
         np.stack([duplicates, survivors], axis=1),
-        colors=draw.packed_rgba(draw.MERGE_RGB)[None],
-        radii=rr.Radius.ui_points(3.0),
+        colors=draw.packed_rgba(draw.MERGE_RGB, alpha=150)[None],
+        radii=rr.Radius.ui_points(1.5),
         labels=list(labels),
         show_labels=False,
     )

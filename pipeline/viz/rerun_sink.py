@@ -565,7 +565,7 @@ class RerunSink:
         if wrong:
             self.rec.log(
                 e.WRONG,
-                marks.wrong_lines(
+                *marks.wrong_lines(
                     np.array([pose_at(k) for (k, _), _ in wrong]),
                     np.array([landmark_at(j) for _, j in wrong]),
                     [f"p{k} d{d} → L{j}" for (k, d), j in wrong],

@@ -12,7 +12,7 @@ import pytest
 
 from pipeline.backend.hypotheses import NULL
 from pipeline.log import Detection
-from pipeline.viz import draw, events, labels, legend, plots
+from pipeline.viz import draw, events, frame, labels, legend, plots
 from pipeline.viz.summary import RunState, comparison_markdown, summary_markdown
 
 
@@ -96,6 +96,21 @@ def test_the_default_eye_sees_the_map_and_its_legend(aspect, size):
         assert abs(corner[0] - target[0]) <= half_height * aspect * (1 + 1e-9)
     assert board.row_spacing == pytest.approx(2 * half_height / legend.ROWS_PER_VIEW)
     assert np.all(board.centres[:, 1] < low[1])  # below the map
+
+
+def test_the_map_is_laid_out_round_what_the_detections_saw():
+    # pose 0 at the origin; pose 1 ten metres on, turned left a quarter
+    turned = np.eye(4)
+    turned[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]
+    turned[:3, 3] = [10.0, 0.0, 0.0]
+    poses = np.array([np.eye(4), turned])
+    # 5 m ahead of pose 0; 2 m ahead of pose 1 (its ahead is +y); 3 m to pose 1's left; a
+    # false detection 900 m off
+    measured = [(0.0, 0.0, 5.0), (0.0, 0.0, 2.0), (math.pi / 2, 0.0, 3.0), (0.0, 0.0, 900.0)]
+    points = frame.seen_points(np.array([0, 1, 1, 0]), np.array(measured), poses, share=0.75)
+    np.testing.assert_allclose(points, [[5.0, 0.0, 0.0], [10.0, 2.0, 0.0], [7.0, 0.0, 0.0]],
+                               atol=1e-12)  # fmt: skip
+    assert frame.seen_points(np.zeros(0, int), np.zeros((0, 3)), poses).shape == (0, 3)
 
 
 def test_labels_that_would_cover_others_are_left_out():

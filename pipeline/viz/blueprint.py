@@ -147,7 +147,7 @@ def replay_blueprint(
         rrb.Vertical(
             rrb.Horizontal(
                 map_view("Map", extent, REPLAY_MAP_ASPECT),
-                rrb.Vertical(*side, row_shares=[3, 2, 2] if images else [1, 1]),
+                rrb.Vertical(*side, row_shares=[2.2, 3, 2] if images else [1, 1]),
                 column_shares=[3, 2],
             ),
             rrb.Grid(*[plot_view(p, plot_window) for p in plots], grid_columns=3),

@@ -258,14 +258,22 @@ def aligned_ground_truth(
     return indices, positions @ alignment[:3, :3].T + alignment[:3, 3]
 
 
+def aligned_points(points, alignment: np.ndarray) -> np.ndarray:
+    """Points (N, 3) of the ground truth's frame in the estimate's."""
+    return np.asarray(points, dtype=float).reshape(-1, 3) @ alignment[:3, :3].T + alignment[:3, 3]
+
+
+def dead_reckoning_poses(odometry: list[Odometry]) -> np.ndarray:
+    """The poses (N + 1, 4, 4) the odometry alone gives, from the origin."""
+    poses = [np.eye(4)]
+    for step in odometry:
+        poses.append(poses[-1] @ _matrix(step.translation, step.rotation))
+    return np.array(poses)
+
+
 def dead_reckoning(odometry: list[Odometry]) -> np.ndarray:
     """Positions (N + 1, 3) of the poses the odometry alone gives, from the origin."""
-    pose = np.eye(4)
-    positions = [pose[:3, 3].copy()]
-    for step in odometry:
-        pose = pose @ _matrix(step.translation, step.rotation)
-        positions.append(pose[:3, 3].copy())
-    return np.array(positions)
+    return dead_reckoning_poses(odometry)[:, :3, 3]
 
 
 def body_to_world(rows: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -95,7 +95,7 @@ def replay_plots(ground_truth: bool, truth_labels: bool, smoothing_window: int) 
 def frontend_plots() -> list[Plot]:
     return [
         Plot(
-            "Detections per keyframe",
+            "Detections",
             (
                 Series(e.TAG_COUNT, "tags", (31, 119, 180), "blue"),
                 Series(e.BOX_COUNT, "boxes", (255, 127, 14), "orange"),

@@ -314,11 +314,10 @@ class RerunSink:
             )
             landmarks = log.ground_truth_landmarks
             if landmarks is not None and landmarks.landmarks:
-                points = np.array([lm.position for lm in landmarks.landmarks], dtype=float)
                 self.rec.log(
                     e.GROUND_TRUTH_LANDMARKS,
                     rr.Points3D(
-                        points @ alignment[:3, :3].T + alignment[:3, 3],
+                        draw.aligned_points([lm.position for lm in landmarks.landmarks], alignment),
                         colors=draw.packed_rgba(draw.TRUTH_RGB)[None],
                         class_ids=[lm.class_id for lm in landmarks.landmarks],
                         labels=[f"true {lm.id}" for lm in landmarks.landmarks],

@@ -15,7 +15,7 @@ HAVE := $(call minor,$(BIN)/python)
 # Python is rebuilt. Otherwise any working .venv of a supported Python is kept.
 ASKED := $(filter command line environment,$(origin PYTHON))
 
-.PHONY: demo test bench lint clean models docs
+.PHONY: demo test test-fast bench lint clean models shell docs
 
 $(STAMP): pyproject.toml
 	@if [ -d $(VENV) ] && { [ -z "$(filter $(PYTHONS),$(HAVE))" ] || \
@@ -42,7 +42,19 @@ demo: models
 test: models
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
+
+# The suite without the tests marked slow (over about 3 s each): the loop to run while working.
+test-fast: models
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/python -m pytest -q -m "not slow" --durations=15
+
+# A shell whose PATH starts with .venv/bin (mmslam, rerun, evo_ape, ...), so that the README's
+# commands run as typed; `exit` leaves it.
+shell: $(STAMP)
+	@echo "make shell: $(abspath $(BIN)) is first on this shell's PATH; 'exit' to leave it"
+	@VIRTUAL_ENV="$(abspath $(VENV))" PATH="$(abspath $(BIN)):$$PATH" $${SHELL:-/bin/sh}
 
 bench: $(STAMP)
 	$(BIN)/python -m data_tools.bench

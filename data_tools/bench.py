@@ -35,10 +35,9 @@ METHODS = ("known", "ml", "mm", "mm-nh")
 
 def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:
     """One replay in this process: its figures, as a dict."""
-    from pipeline.backend.slam import Backend
     from pipeline.config import load_config
     from pipeline.log import read_log
-    from pipeline.replay import compute_metrics, keyframes
+    from pipeline.replay import compute_metrics, keyframes, new_backend
 
     config = load_config()
     for section, values in overrides.items():
@@ -47,7 +46,7 @@ def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:
         )
     log = read_log(log_path)
     start, cpu = time.perf_counter(), time.process_time()
-    backend = Backend(config, np.asarray(log.metadata.confusion_matrix), method)
+    backend = new_backend(log, method, config)
     detections = []
     for odometry, dets in keyframes(log):
         backend.add_keyframe(odometry, dets)
@@ -63,7 +62,7 @@ def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:
         "log_seconds": (stamps[-1] - stamps[0]) * 1e-9,
         "ms_per_detection": deciles_ms_per_detection(backend.step_seconds, detections),
         "peak_mb": peak_kb("self") / 1024,
-        "rmse_m": metrics["translation_error_m"]["rmse"] if metrics else float("nan"),
+        "rmse_m": metrics.get("translation_error_m", {}).get("rmse", float("nan")),
         "landmarks": len(result.landmark_ids),
         "poses": len(detections),
     }

@@ -60,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
         f"associations.csv, metrics.json).\nOpen the recording with: .venv/bin/rerun {recording}"
         f"\nCompare the indoor runs: mmslam plot {tags} "
         f"{out / 'indoor-ml'} {out / 'indoor-mm-nh'} --out {out / 'indoor.png'}"
+        "\n(mmslam, rerun and evo's commands are in .venv/bin: `source .venv/bin/activate` or "
+        "`make shell` puts them on your PATH, and the README's commands then run as typed.)"
     )
     return 0
 

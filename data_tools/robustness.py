@@ -1,14 +1,18 @@
 """The association suite: every `robust-*` sweep of configs/sweeps/ (street grids in two worlds,
 indoor tags and KITTI 05 with their noise stated and understated, a planar park), run or
-resumed, and one table of how each method fares on all of them.
+resumed, and one table of how each method fares on all of them. `--suite numerics` runs the
+`numerics-*` sweeps instead: every association method where the solver once fell back (indoor
+tags with Known DA over 31 seeds, KITTI 05 at noise 1-5, the planar park, two street grids).
 
-    python -m data_tools.robustness --out out/robust [--workers N] [--seeds N] [--only NAME ...]
+    python -m data_tools.robustness --out out/robust [--suite robust|numerics] [--workers N]
+        [--seeds N] [--only NAME ...]
 
 Each sweep's runs go to OUT/<name> (`mmslam sweep` resumes them there). The table gives, per
 sweep and method, over its seeds: mean, median and worst translation RMSE (m); wrong and
 missed associations, one to one; null-hypothesis wins; landmarks per true landmark; mean replay
-time; and the seeds within 1.5x Known DA's RMSE + 0.5 m that are also no worse than ML's
-(the association issue's target for MM + NH).
+time; solver fallbacks (batch solves and QR, summed; each one a bug); and the seeds within 1.5x
+Known DA's RMSE + 0.5 m that are also no worse than ML's (the association issue's target for
+MM + NH).
 """
 
 from __future__ import annotations
@@ -27,12 +31,20 @@ from pipeline.settings import config_path
 
 logger = logging.getLogger(__name__)
 
-PREFIX = "robust-"
+SUITES = ("robust", "numerics")
 
 
-def suite() -> list[str]:
-    """The names of the suite's sweeps."""
-    return sorted(p.stem for p in config_path("sweeps").glob(f"{PREFIX}*.toml"))
+def suite(name: str = "robust") -> list[str]:
+    """The names of the suite's sweeps: configs/sweeps/NAME-*.toml."""
+    return sorted(p.stem for p in config_path("sweeps").glob(f"{name}-*.toml"))
+
+
+def _fallbacks(rows: Sequence[ResultRow]) -> str:
+    """The runs' solver fallbacks, summed ("-" where a run did not record them)."""
+    counts = [(r.fallbacks_batch, r.fallbacks_qr) for r in rows]
+    if any(None in c for c in counts):
+        return "-"
+    return str(sum(b + q for b, q in counts))
 
 
 def near(rows: Sequence[ResultRow], method: str) -> tuple[int, int]:
@@ -58,7 +70,7 @@ def suite_table(results: dict[str, list[ResultRow]]) -> str:
     """One Markdown table: a row per sweep and method."""
     header = [
         "sweep", "method", "mean", "median", "worst", "wrong", "missed", "null",
-        "landmarks / true", "time s", "near",
+        "landmarks / true", "time s", "fallbacks", "near",
     ]  # fmt: skip
     rows = []
     for name, runs in results.items():
@@ -69,7 +81,7 @@ def suite_table(results: dict[str, list[ResultRow]]) -> str:
             near_count, seeds = near(runs, method)
             rows.append(
                 [
-                    name.removeprefix(PREFIX),
+                    name.split("-", 1)[1],
                     method_name(method),
                     f"{statistics.fmean(rmse):.2f}",
                     f"{statistics.median(rmse):.2f}",
@@ -79,6 +91,7 @@ def suite_table(results: dict[str, list[ResultRow]]) -> str:
                     _mean([r.null for r in mine]),
                     "-" if None in per_true else f"{statistics.fmean(per_true):.2f}",
                     f"{statistics.fmean(r.runtime_s for r in mine):.1f}",
+                    _fallbacks(mine),
                     "-" if method == REFERENCE else f"{near_count} / {seeds}",
                 ]
             )
@@ -92,11 +105,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True, help="a folder per sweep under it")
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     parser.add_argument("--seeds", type=int, default=None, help="seeds 0..N-1 in every sweep")
+    parser.add_argument("--suite", choices=SUITES, default="robust", help="which sweeps")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="these sweeps of the suite")
     parser.add_argument("--report", action="store_true", help="only the table of what is there")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    names = suite()
+    names = suite(args.suite)
     if args.only:
         unknown = sorted(set(args.only) - set(names))
         if unknown:

@@ -13,7 +13,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pipeline import __version__
 from pipeline.errors import InputError, SolverError, describe_os_error
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh")
@@ -30,6 +29,7 @@ EXAMPLES = """examples:
   mmslam plot out/kitti05.mcap out/kitti05-mmnh --out out/kitti05.png
   mmslam frontend out/seq --out out/seq.mcap
   mmslam sweep small --out out/sweep --workers 2
+  mmslam convert victoria_park.txt --out out/vp.mcap
 
 -v and -q go anywhere on the line; `mmslam COMMAND -h` shows each command's options.
 """
@@ -41,10 +41,7 @@ COMMAND_EXAMPLES = {
   mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1
   mmslam simulate indoor-tags --out out/short.mcap --config my-route.toml
 """,
-    "frontend": """examples:
-  mmslam frontend ../shared/data/real/kitti-clip-1 --out out/clip.mcap
-  mmslam frontend out/seq --out out/seq.mcap --images --rrd out/seq.rrd
-""",
+    "frontend": "",  # the layouts, each with an example: frontend_examples()
     "replay": """examples:
   mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh
   mmslam replay out/tags.mcap --method ml --out out/tags-ml --rrd out/tags-ml.rrd
@@ -77,7 +74,45 @@ each plot, a table of the results. It is put together once every run has finishe
     "plot": """examples:
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
 """,
+    "convert": """examples:
+  mmslam convert .venv/lib/python3.11/site-packages/gtsam/Data/victoria_park.txt --out out/vp.mcap
+  mmslam replay out/vp.mcap --method known --out out/vp-known
+  mmslam replay out/vp.mcap --method mm-nh --out out/vp-mm-nh
+
+The file's landmark ids become each detection's truth_landmark_id: known replays the given
+associations, and every replay's metrics.json scores its associations against them.
+""",
 }
+
+
+def frontend_examples() -> str:
+    """`mmslam frontend --help`'s epilog: every layout it reads, what it holds, an example."""
+    from pipeline.datasets import LAYOUTS
+
+    lines = ["layouts (chosen by what SEQUENCE holds), each with an example:"]
+    for name, holds, example in LAYOUTS:
+        lines += [f"  {name}: {holds}", f"    {example}"]
+    lines += [
+        "",
+        "more examples:",
+        "  mmslam frontend out/seq --out out/seq.mcap --images --rrd out/seq.rrd",
+        "  mmslam frontend my_bag.mcap --out out/bag.mcap --calibration calibration.toml",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+class _VersionAction(argparse.Action):
+    """`--version`: mmslam's version, its git commit when run from a checkout, and the
+    libraries' versions. Asked for only when given, so that other commands never run git."""
+
+    def __init__(self, option_strings: list[str], dest: str, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, help="show the versions and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> None:
+        from pipeline.provenance import version_text
+
+        print(version_text())
+        parser.exit(0)
 
 
 class _Parser(argparse.ArgumentParser):
@@ -157,6 +192,14 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_convert(args: argparse.Namespace) -> int:
+    from data_tools.landmarks2d import convert_landmarks2d, load_landmarks2d_config
+
+    summary = convert_landmarks2d(args.source, args.out, load_landmarks2d_config(args.config))
+    print(summary.summary_line())
+    return 0
+
+
 def _cmd_frontend(args: argparse.Namespace) -> int:
     from pipeline.frontend.run import run_frontend
 
@@ -173,6 +216,9 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
             images=args.images,
             progress=not args.quiet,
             sink=sink,
+            left_topic=args.left_topic,
+            right_topic=args.right_topic,
+            calibration=args.calibration,
         )
     finally:
         if sink is not None:
@@ -318,7 +364,7 @@ def _subcommand(
         name,
         help=help_text,
         description=help_text[0].upper() + help_text[1:] + ".",
-        epilog=COMMAND_EXAMPLES[name],
+        epilog=frontend_examples() if name == "frontend" else COMMAND_EXAMPLES[name],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         parents=[_verbosity(defaults=False)],
     )
@@ -334,7 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         parents=[_verbosity(defaults=True)],
     )
-    parser.add_argument("--version", action="version", version=f"mmslam {__version__}")
+    parser.add_argument("--version", action=_VersionAction)
     commands = parser.add_subparsers(
         dest="command", required=True, parser_class=_Parser, metavar="COMMAND"
     )
@@ -367,13 +413,38 @@ def build_parser() -> argparse.ArgumentParser:
     simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
 
     frontend = _subcommand(commands, "frontend", "stereo images to a detection log", _cmd_frontend)
-    frontend.add_argument("sequence", type=Path, metavar="SEQUENCE_DIR")
+    frontend.add_argument(
+        "sequence", type=Path, metavar="SEQUENCE",
+        help="a folder (KITTI, EuRoC or plain layout) or a ROS 2 bag (folder or file)",
+    )  # fmt: skip
     frontend.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
     frontend.add_argument(
         "--config", type=Path, metavar="FILE", help="TOML over configs/frontend.toml"
     )
     frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
+    frontend.add_argument(
+        "--left-topic", metavar="TOPIC",
+        help="a bag's left image topic (default: found when the bag has one obvious pair)",
+    )  # fmt: skip
+    frontend.add_argument("--right-topic", metavar="TOPIC", help="a bag's right image topic")
+    frontend.add_argument(
+        "--calibration", type=Path, metavar="FILE",
+        help="a bag's rectified stereo calibration, as the plain layout's calibration.toml "
+        "(default: the bag's CameraInfo)",
+    )  # fmt: skip
     _add_viz_options(frontend)
+
+    convert = _subcommand(
+        commands, "convert", "a 2-D landmark dataset (Victoria Park) to a log", _cmd_convert
+    )
+    convert.add_argument(
+        "source", type=Path, metavar="FILE",
+        help="GTSAM's 2-D landmark text format: ODOMETRY/EDGE2, LANDMARK and BR lines",
+    )  # fmt: skip
+    convert.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    convert.add_argument(
+        "--config", type=Path, metavar="FILE", help="TOML over configs/landmarks2d.toml"
+    )
 
     inspect = _subcommand(
         commands, "inspect", "what a log holds, and whether it is valid", _cmd_inspect

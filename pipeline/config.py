@@ -24,6 +24,7 @@ from pipeline.settings import (
 MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
 FIRST_CHOICES = ("joint", "prediction", "weights")
 NULL_MODELS = ("relative", "literal")
+PLANAR_MODES = ("auto", "always", "never")
 
 
 @dataclass(frozen=True)
@@ -129,6 +130,9 @@ class Isam2Config:
 class PriorConfig:
     pose0_sigma_rotation: float = setting(POSITIVE)
     pose0_sigma_translation: float = setting(POSITIVE)
+    planar: str = setting(one_of(*PLANAR_MODES))
+    planar_height_sigma_m: float = setting(POSITIVE)
+    planar_tilt_sigma_rad: float = setting(POSITIVE)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline import evaluation, outputs, provenance
 from pipeline.backend.factors import pose_from_message
+from pipeline.backend.planar import uses_plane
 from pipeline.backend.slam import Backend, BackendResult
 from pipeline.config import Config
 from pipeline.errors import InputError, SolverError, first_line
@@ -37,20 +38,24 @@ class ReplayResult:
     num_detections: int
     num_landmarks: int
     runtime_s: float
-    metrics: dict[str, Any] | None
+    metrics: dict[str, Any]
 
     def summary_line(self) -> str:
+        m = self.metrics
         line = (
             f"{self.method}: {self.num_poses} poses, {self.num_detections} detections, "
             f"{self.num_landmarks} landmarks in {self.runtime_s:.2f} s"
         )
-        if self.metrics:
-            t = self.metrics["translation_error_m"]
-            a = self.metrics["association"]
-            line += (
-                f"; translation error rmse {t['rmse']:.3f} m max {t['max']:.3f} m; associations "
-                f"{a['correct']} correct, {a['wrong']} wrong, {a['null']} null"
-            )
+        if "translation_error_m" in m:
+            t = m["translation_error_m"]
+            line += f"; translation error rmse {t['rmse']:.3f} m max {t['max']:.3f} m"
+        if "association" in m:
+            a = m["association"]
+            line += f"; associations {a['correct']} correct, {a['wrong']} wrong, {a['null']} null"
+        fallbacks = m["solver_fallbacks"]
+        if any(fallbacks.values()):
+            kinds = ", ".join(f"{n} {kind}" for kind, n in fallbacks.items() if n)
+            line += f"; SOLVER FELL BACK {sum(fallbacks.values())} times ({kinds}): a bug to report"
         return line + f" -> {self.out_dir}"
 
 
@@ -92,11 +97,16 @@ def solver_failures() -> Iterator[None]:
         raise SolverError(f"the back-end failed: {reason}") from exc
 
 
+def new_backend(log: DetectionLog, method: str, config: Config) -> Backend:
+    """The back-end for replaying `log`: its detector's confusion, its plane if it has one."""
+    confusion = np.asarray(log.metadata.confusion_matrix, dtype=float)
+    return Backend(config, confusion, method, uses_plane(config.prior.planar, log))
+
+
 def run_backend(
     log: DetectionLog, method: str, config: Config, sink: Sink, progress: bool
 ) -> Backend:
-    confusion = np.asarray(log.metadata.confusion_matrix, dtype=float)
-    backend = Backend(config, confusion, method)
+    backend = new_backend(log, method, config)
     steps = track(keyframes(log), log.num_poses, f"replay {method}", "pose", enabled=progress)
     for odometry, detections in steps:
         report = backend.add_keyframe(odometry, detections)
@@ -106,31 +116,18 @@ def run_backend(
 
 def compute_metrics(
     log: DetectionLog, result: BackendResult, method: str, runtime_s: float
-) -> dict[str, Any] | None:
-    if not log.has_ground_truth:
-        return None
-    indices = [m.pose_index for m in log.ground_truth_poses]
-    reference = np.stack(
-        [pose_from_message(m.translation, m.rotation).matrix() for m in log.ground_truth_poses]
-    )
-    estimated = np.stack([result.poses[i].matrix() for i in indices])
-    translation, rotation = evaluation.absolute_errors(
-        estimated, reference, pose_stamps_s(log)[indices]
-    )
+) -> dict[str, Any]:
+    """The run's counts, always; its errors against the ground truth where the log has it."""
     truth = [r.measurement.detection.truth_landmark_id for r in result.records]
     chosen = [r.landmark_id for r in result.records]
-    counts = evaluation.association_counts(truth, chosen)
-    counts["unlabelled"] = sum(t is None for t in truth)
-    return {
+    metrics: dict[str, Any] = {
         "method": method,
         "num_poses": log.num_poses,
         "num_detections": log.num_detections,
         "num_landmarks": len(result.landmark_ids),
         "runtime_s": round(runtime_s, 3),
-        "translation_error_m": translation,
-        "rotation_error_rad": rotation,
-        "association": counts,
-        "association_one_to_one": evaluation.association_scores(truth, chosen),
+        "solver_fallbacks": result.solver_fallbacks,
+        "nulls": sum(j < 0 for j in chosen),
         "switches": result.switches,
         "merges": result.merges,
         "noise_scales": {
@@ -148,10 +145,27 @@ def compute_metrics(
         },
         **({"loop_drift": result.loop_drift} if result.loop_drift is not None else {}),
     }
+    if any(t is not None for t in truth):
+        counts = evaluation.association_counts(truth, chosen)
+        counts["unlabelled"] = sum(t is None for t in truth)
+        metrics["association"] = counts
+        metrics["association_one_to_one"] = evaluation.association_scores(truth, chosen)
+    if log.has_ground_truth:
+        indices = [m.pose_index for m in log.ground_truth_poses]
+        reference = np.stack(
+            [pose_from_message(m.translation, m.rotation).matrix() for m in log.ground_truth_poses]
+        )
+        estimated = np.stack([result.poses[i].matrix() for i in indices])
+        translation, rotation = evaluation.absolute_errors(
+            estimated, reference, pose_stamps_s(log)[indices]
+        )
+        metrics["translation_error_m"] = translation
+        metrics["rotation_error_rad"] = rotation
+    return metrics
 
 
 def render_outputs(
-    log: DetectionLog, result: BackendResult, metrics: dict[str, Any] | None
+    log: DetectionLog, result: BackendResult, metrics: dict[str, Any]
 ) -> dict[str, str]:
     observations: dict[int, int] = {}
     for record in result.records:
@@ -175,16 +189,14 @@ def render_outputs(
         (r.measurement.pose_index, r.measurement.detection_index, r.landmark_id, r.weight)
         for r in result.records
     ]
-    files = {
+    return {
         outputs.TRAJECTORY: outputs.trajectory_tum(
             pose_stamps_s(log), [p.matrix() for p in result.poses]
         ),
         outputs.LANDMARKS: outputs.landmarks_csv(landmark_rows),
         outputs.ASSOCIATIONS: outputs.associations_csv(association_rows),
+        outputs.METRICS: outputs.metrics_json(metrics),
     }
-    if metrics is not None:
-        files[outputs.METRICS] = outputs.metrics_json(metrics)
-    return files
 
 
 def replay(
@@ -219,7 +231,7 @@ def replay(
                 time.perf_counter() - wall_start,
                 command,
             )
-            folder.commit(files, stale=[outputs.METRICS])
+            folder.commit(files)
             sink.finish(result, metrics)
     finally:
         sink.close()

@@ -37,7 +37,7 @@ from mcap.writer import CompressionType, Writer
 
 from pipeline.cli import main
 from pipeline.errors import InputError
-from pipeline.log import read_log, schemas
+from pipeline.log import limits, read_log, schemas
 from pipeline.log.messages import LogMetadata
 from pipeline.log.metadata import metadata_record
 
@@ -611,20 +611,23 @@ def edge_cases() -> Iterator[Case]:
     """Values at the documented bounds, which the reader accepts: the back-end must cope, or
     fail in one line (exit 1), never with a traceback."""
     det = DETECTION
-    tight = [1e-12 * v for v in I6]
+    tight = [v / limits.MAX_CONDITION for v in I6]
+    loose = limits.MAX_VARIANCE / limits.MAX_CONDITION  # the other variances
     for i in (3, 4, 5):
-        tight[i * 7] = 1.0  # condition number 1e12, the bound
+        tight[i * 7] = 1.0  # condition number at the bound
     values = {
-        "a 10 km odometry step": ((schemas.ODOMETRY, ("translation",)), [1e4, 0.0, 0.0]),
+        "the longest odometry step": (
+            (schemas.ODOMETRY, ("translation",)), [limits.MAX_ODOMETRY_STEP_M, 0.0, 0.0]
+        ),
         "range 10 km": ((schemas.DETECTIONS, (*det, "range")), 1e4),
         "range 1 mm": ((schemas.DETECTIONS, (*det, "range")), 1e-3),
         "elevation pi/2": ((schemas.DETECTIONS, (*det, "elevation")), np.pi / 2),
         "bearing -pi": ((schemas.DETECTIONS, (*det, "bearing")), -np.pi),
-        "a variance of 1e-18": ((schemas.DETECTIONS, (*det, "covariance")),
-                                [1e-18, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6]),
-        "a variance of 1e12": ((schemas.DETECTIONS, (*det, "covariance")),
-                               [1e12, 0, 0, 0, 1.0, 0, 0, 0, 1.0]),
-        "odometry condition number 1e12": ((schemas.ODOMETRY, ("covariance",)), tight),
+        "the smallest variance": ((schemas.DETECTIONS, (*det, "covariance")),
+                                  [limits.MIN_VARIANCE, 0, 0, 0, 1e-6, 0, 0, 0, 1e-6]),
+        "the largest variance": ((schemas.DETECTIONS, (*det, "covariance")),
+                                 [limits.MAX_VARIANCE, 0, 0, 0, loose, 0, 0, 0, loose]),
+        "the worst odometry condition number": ((schemas.ODOMETRY, ("covariance",)), tight),
         "ground truth 1e8 m away": ((schemas.GT_POSE, ("translation", 0)), 1e8),
     }  # fmt: skip
     for name, ((topic, path), value) in values.items():

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from data_tools.bench_frontend import (
+    TAG_PHOTOS,
     shared_non_tag_images,
     shared_tag_photos,
     tag_recall,
@@ -31,6 +32,7 @@ from pipeline.frontend.apriltags import (
     tag_object_points,
 )
 from pipeline.frontend.config import load_frontend_config
+from tests import real_data
 
 DATA = Path(__file__).parent / "data" / "apriltag"
 PHOTOS = sorted(DATA.glob("*.jpg"))
@@ -249,11 +251,10 @@ def test_score_is_the_decision_margin_capped():
 
 # --- the shared real photos (../shared/data/real/apriltag-photos) ----------------------------
 
-needs_real_photos = pytest.mark.skipif(
-    not shared_tag_photos(), reason="../shared/data/real/apriltag-photos is absent"
-)
+needs_real_photos = real_data.needs(TAG_PHOTOS)
 
 
+@pytest.mark.slow
 @needs_real_photos
 def test_recall_against_libapriltag_at_full_resolution_on_real_photos():
     # 94 photos of an office and a hallway: libapriltag at full resolution finds 236 tags,
@@ -264,6 +265,7 @@ def test_recall_against_libapriltag_at_full_resolution_on_real_photos():
     assert result.extra <= 2
 
 
+@pytest.mark.slow
 @needs_real_photos
 def test_no_tags_on_real_images_without_tags():
     images = shared_non_tag_images()

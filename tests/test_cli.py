@@ -55,6 +55,7 @@ def assert_one_line_error(status: int, err: str, *needles: str) -> None:
         assert needle in err
 
 
+@pytest.mark.e2e
 def test_replay_writes_the_contract_outputs(tmp_path, good_log, capsys):
     status, out, _ = run_cli(
         capsys, "replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "o"), "--quiet"
@@ -90,6 +91,7 @@ def test_replay_writes_the_contract_outputs(tmp_path, good_log, capsys):
     assert len(rows) - 1 == metrics["num_detections"]
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("case", sorted(BAD_MESSAGES))
 def test_bad_logs_exit_2_and_leave_earlier_outputs(tmp_path, capsys, earlier_run, case):
     out, before = earlier_run
@@ -99,6 +101,7 @@ def test_bad_logs_exit_2_and_leave_earlier_outputs(tmp_path, capsys, earlier_run
     assert snapshot(out) == before
 
 
+@pytest.mark.e2e
 def test_truncated_log_exits_2_and_leaves_earlier_outputs(tmp_path, capsys, earlier_run):
     out, before = earlier_run
     whole = write_raw(tmp_path / "whole.mcap", good_messages() * 10).read_bytes()
@@ -109,6 +112,7 @@ def test_truncated_log_exits_2_and_leaves_earlier_outputs(tmp_path, capsys, earl
     assert snapshot(out) == before
 
 
+@pytest.mark.e2e
 def test_known_without_truth_ids_exits_2(tmp_path, capsys, earlier_run):
     out, before = earlier_run
     scene = Scene(square_loop(4.0, 1.0, 0.25), np.array([[3.0, 1.0, 0.0]]), np.array([0]))
@@ -118,6 +122,7 @@ def test_known_without_truth_ids_exits_2(tmp_path, capsys, earlier_run):
     assert snapshot(out) == before
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     "content,needle",
     [
@@ -150,6 +155,7 @@ def test_bad_config_exits_2(tmp_path, capsys, good_log, earlier_run, content, ne
     assert snapshot(out) == before
 
 
+@pytest.mark.e2e
 def test_config_overrides_defaults(tmp_path, capsys, good_log):
     config = tmp_path / "strict.toml"
     config.write_text("[association]\nchi2_confidence = 0.5\n")
@@ -240,6 +246,7 @@ def test_a_closed_pipe_is_not_an_error(good_log, monkeypatch):
     assert main(["inspect", str(good_log)]) == 0
 
 
+@pytest.mark.e2e
 def test_a_solver_failure_exits_1_with_one_line_and_leaves_earlier_outputs(
     tmp_path, capsys, good_log, earlier_run, monkeypatch
 ):
@@ -268,12 +275,15 @@ def test_a_solver_failure_exits_1_with_one_line_and_leaves_earlier_outputs(
 # --- how a run was made, and the command line around the commands ---------------------------
 
 
+@pytest.mark.e2e
 def test_run_json_says_how_the_outputs_were_made(tmp_path, good_log, capsys):
     args = ["replay", str(good_log), "--method", "mm", "--out", str(tmp_path / "o"), "-q"]
     status, _, _ = run_cli(capsys, *args)
     assert status == 0
     record = json.loads((tmp_path / "o" / "run.json").read_text())
     assert record["mmslam_version"] == pipeline.__version__
+    assert set(record["libraries"]) == {"gtsam", "numpy", "opencv", "rerun-sdk", "mcap"}
+    assert "git_commit" in record and "git_dirty" in record
     assert record["command"] == ["mmslam", *args]
     assert record["config"]["method"] == "mm"
     assert record["config"]["backend"]["association"]["chi2_confidence"] == 0.9
@@ -290,7 +300,9 @@ def test_version(capsys):
     with pytest.raises(SystemExit) as info:
         main(["--version"])
     assert info.value.code == 0
-    assert capsys.readouterr().out == f"mmslam {pipeline.__version__}\n"
+    first, second = capsys.readouterr().out.splitlines()
+    assert first.startswith(f"mmslam {pipeline.__version__}")
+    assert second.startswith("python ") and " gtsam " in second
 
 
 @pytest.mark.parametrize("command", sorted(COMMAND_EXAMPLES))
@@ -301,6 +313,7 @@ def test_every_command_shows_examples(capsys, command):
     assert f"examples:\n  mmslam {command} " in capsys.readouterr().out
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("where", ["before", "after"])
 def test_verbosity_goes_anywhere_and_leaves_third_party_logs_quiet(
     tmp_path, good_log, capsys, where
@@ -344,6 +357,7 @@ def test_sweeps_by_name(tmp_path, capsys):
     assert_one_line_error(status, err, "no built-in sweep", "small")
 
 
+@pytest.mark.e2e
 def test_export_gives_evo_the_ground_truth_and_evo_agrees_with_the_metrics(
     tmp_path, good_log, capsys
 ):
@@ -383,6 +397,7 @@ def test_export_without_ground_truth_exits_2_and_writes_nothing(tmp_path, capsys
     assert_one_line_error(status, err, "nothing to export")
 
 
+@pytest.mark.e2e
 def test_plot_labels_its_axes_in_metres(tmp_path, good_log, capsys):
     from data_tools.plot_runs import figure
 

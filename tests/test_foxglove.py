@@ -135,6 +135,7 @@ def kitti_log(tmp_path_factory) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_a_simulated_log_carries_foxglove_topics_that_match_it(kitti_log):
     log = read_log(kitti_log)  # the contract's reader still reads it, topics and all
     fox = read_foxglove(kitti_log)
@@ -227,6 +228,7 @@ def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
 # --- the estimate: `replay --mcap FILE` -------------------------------------------------------
 
 
+@pytest.mark.e2e
 def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
     scene, _, _ = kidnap_scene(alias_seen_before=False)
     log_path = write_scene(tmp_path / "alias.mcap", scene, odom_noise=0.0, meas_noise=0.0)
@@ -272,6 +274,7 @@ def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
     assert result.metrics["association"]["null"] == 1
 
 
+@pytest.mark.e2e
 def test_two_sinks_get_the_same_run(tmp_path):
     """--mcap beside a Rerun option: the sinks are teed, each sees the whole run."""
     scene, _, _ = kidnap_scene(alias_seen_before=True)

@@ -94,7 +94,7 @@ def test_stereo_point_measurement_covariance_matches_monte_carlo():
     uvd = np.array([500.0, 150.0, 20.0])
     pixel_covariance = g.stereo_pixel_covariance(0.3)
     _, covariance = g.stereo_point_measurement(uvd, pixel_covariance, INTRINSICS)
-    samples = rng.multivariate_normal(uvd, pixel_covariance, size=20000)
+    samples = rng.multivariate_normal(uvd, pixel_covariance, size=20000, method="cholesky")
     body = g.triangulate(samples, INTRINSICS) @ g.BODY_FROM_CAMERA_ROTATION.T
     empirical = np.cov(g.bearing_elevation_range(body).T)
     np.testing.assert_allclose(np.sqrt(np.diag(empirical)), np.sqrt(np.diag(covariance)), rtol=0.05)

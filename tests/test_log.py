@@ -22,7 +22,7 @@ from pipeline.log import (
     read_log,
 )
 from pipeline.log import schemas as topics
-from pipeline.log.limits import MAX_RANGE_M
+from pipeline.log.limits import MAX_DETECTIONS_PER_POSE, MAX_RANGE_M
 from pipeline.log.metadata import metadata_record
 
 I3 = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
@@ -319,3 +319,20 @@ def test_written_messages_follow_the_json_schemas_in_the_file(tmp_path):
     bad = json.loads(json.dumps({"stamp_ns": 0, "pose_index": 0, "detections": [{"range": -1}]}))
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(bad, json.loads(topics.schema_bytes(topics.DETECTIONS)))
+
+
+def test_a_pose_holds_at_most_the_detections_a_keyframe_may(tmp_path):
+    """MAX_DETECTIONS_PER_POSE over all of a pose's messages: at the bound a log reads; one
+    more, even split over two messages, is refused naming the pose and the message."""
+    half = MAX_DETECTIONS_PER_POSE // 2
+    batch = [detection(bearing=0.001 * k) for k in range(half)]
+    at_bound = [
+        (topics.DETECTIONS, detections(0, *batch), None),
+        (topics.DETECTIONS, detections(0, *batch), None),
+        (topics.ODOMETRY, odometry(0), None),
+    ]
+    assert read_log(write_raw(tmp_path / "full.mcap", at_bound)).num_detections == 2 * half
+    over = [*at_bound[:2], (topics.DETECTIONS, detections(0, detection()), None), at_bound[2]]
+    with pytest.raises(LogError) as info:
+        read_log(write_raw(tmp_path / "over.mcap", over))
+    assert f"/detections message 2: pose 0 holds {2 * half + 1} detections" in str(info.value)

@@ -24,19 +24,18 @@ from pipeline.backend.noise import (
     updated,
 )
 
-RNG = np.random.default_rng(7)
 GAMMA = np.diag([0.02**2, 0.01**2, 0.3**2])
 
 
-def pairings(n, true_a, true_b, prior_scale):
+def pairings(n, true_a, true_b, prior_scale, rng):
     """n pairings whose prior part is `prior_scale` times Gamma's size, drawn with the true
     scales."""
     out = []
     for _ in range(n):
-        G = RNG.normal(size=(3, 3)) * np.sqrt(np.diag(GAMMA))[:, None] * prior_scale
+        G = rng.normal(size=(3, 3)) * np.sqrt(np.diag(GAMMA))[:, None] * prior_scale
         P = G @ G.T
         true = true_a * P + np.diag(np.asarray(true_b) * np.diag(GAMMA))
-        out.append((RNG.multivariate_normal(np.zeros(3), true), P, GAMMA))
+        out.append((rng.multivariate_normal(np.zeros(3), true, method="cholesky"), P, GAMMA))
     return out
 
 
@@ -55,7 +54,8 @@ def test_measurement_moment_by_hand():
 
 def test_estimator_recovers_overstated_bearing():
     estimator = ScaleEstimator(3, window=10000, min_pairings=100, bounds=(1e-2, 1e2))
-    for row in pairings(3000, 1.0, [1 / 36, 1.0, 1.0], 0.05):
+    rng = np.random.default_rng(7)
+    for row in pairings(3000, 1.0, [1 / 36, 1.0, 1.0], 0.05, rng):
         estimator.add(*row)
     b = estimator.corrections()
     assert b[0] == pytest.approx(1 / 36, rel=0.3)
@@ -64,17 +64,19 @@ def test_estimator_recovers_overstated_bearing():
 
 def test_consistent_noise_gives_corrections_near_one():
     estimator = ScaleEstimator(3, window=10000, min_pairings=100, bounds=(1e-2, 1e2))
-    for row in pairings(3000, 1.0, [1, 1, 1], 0.1):
+    rng = np.random.default_rng(8)
+    for row in pairings(3000, 1.0, [1, 1, 1], 0.1, rng):
         estimator.add(*row)
     np.testing.assert_allclose(estimator.corrections(), 1.0, rtol=0.12)
 
 
 def test_too_few_pairings_say_nothing_and_bounds_hold():
     estimator = ScaleEstimator(3, window=10, min_pairings=5, bounds=(0.5, 2.0))
-    for row in pairings(4, 1.0, [1, 1, 1], 0.1):
+    rng = np.random.default_rng(9)
+    for row in pairings(4, 1.0, [1, 1, 1], 0.1, rng):
         estimator.add(*row)
     assert estimator.corrections() is None
-    for row in pairings(6, 1.0, [50, 50, 50], 0.1):
+    for row in pairings(6, 1.0, [50, 50, 50], 0.1, rng):
         estimator.add(*row)
     assert len(estimator) == 10
     assert np.all(estimator.corrections() <= 2.0)
@@ -85,7 +87,9 @@ def test_too_few_pairings_say_nothing_and_bounds_hold():
 def test_updated_scales_take_bounded_steps():
     scales = NoiseScales(2.0, (1.0, 0.5, 1.0))
     new = updated(scales, np.array([0.5, 4.0, 1.0]), (0.1, 10.0), max_step=3.0)
-    assert new == NoiseScales(2.0, (0.5, 1.5, 1.0))
+    assert new.odometry == 2.0  # kept as it was
+    # products of the scales and their bounded steps: equal to round-off
+    assert new.measurement == pytest.approx((0.5, 1.5, 1.0), rel=1e-12)
     D = new.measurement_matrix()
     np.testing.assert_allclose(D @ np.eye(3) @ D, np.diag([0.5, 1.5, 1.0]))
 
@@ -161,8 +165,8 @@ def fused_windows(Q, L, true_scale, n, rng):
     """n windows whose odometry (true covariance true_scale Q) and rest of the graph
     (covariance L) are fused as the back-end would with Q: (shares, components) stacked."""
     C = np.linalg.inv(np.linalg.inv(Q) + np.linalg.inv(L))  # the estimate's covariance
-    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=n)
-    z_l = rng.multivariate_normal(np.zeros(6), L, size=n)
+    z_o = rng.multivariate_normal(np.zeros(6), true_scale * Q, size=n, method="cholesky")
+    z_l = rng.multivariate_normal(np.zeros(6), L, size=n, method="cholesky")
     fused = (C @ (np.linalg.solve(Q, z_o.T) + np.linalg.solve(L, z_l.T))).T
     windows = [drift_spectrum(d, Q, C) for d in z_o - fused]
     return np.stack([w[0] for w in windows]), np.stack([w[1] for w in windows])
@@ -247,7 +251,7 @@ def test_drift_finds_the_odometry_scale_against_a_known_relative_pose(true_scale
     for window in range(300):
         truth = random_steps(20, rng)
         for step in truth:
-            noise = rng.multivariate_normal(np.zeros(6), true_scale * stated)
+            noise = rng.multivariate_normal(np.zeros(6), true_scale * stated, method="cholesky")
             drift.add_step(step * gtsam.Pose3.Expmap(noise), stated)
         assert drift.due(20 * (window + 1), 20) == [20]
         relative = truth[0]
@@ -394,5 +398,6 @@ def test_drift_scale_belief_is_the_posterior_of_the_loops_closed():
     posterior *= [0.2, 0.2, 0.6]
     np.testing.assert_allclose(np.exp(belief.relative(1.0)[1]), posterior / posterior.sum())
     report = belief.report()
-    assert report["loops"] == 2 and report["scales"] == [1.0, 10.0, 100.0]
+    assert report["loops"] == 2
+    np.testing.assert_allclose(report["scales"], [1.0, 10.0, 100.0], rtol=1e-12)  # powers of 10
     np.testing.assert_allclose(report["probabilities"], posterior / posterior.sum(), atol=1e-4)

@@ -78,6 +78,8 @@ def recorded_steps(args: list[str]) -> list[str]:
     return steps
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_a_replay_killed_between_any_two_steps_of_its_write_leaves_one_whole_set(
     tmp_path, small_log
 ):
@@ -115,6 +117,7 @@ def test_a_replay_killed_between_any_two_steps_of_its_write_leaves_one_whole_set
     print(f"\nkill test: {len(outcomes)} kill points, {outcomes}")
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("step", range(1, 9))
 def test_ctrl_c_at_any_step_leaves_one_whole_set_and_nothing_else(tmp_path, small_log, step):
     out = tmp_path / "out"
@@ -183,6 +186,7 @@ def test_output_folders_that_cannot_be_replaced_whole_are_refused(tmp_path, monk
         outputs.OutputFolder(tmp_path / "file" / "out")
 
 
+@pytest.mark.e2e
 def test_a_full_disk_ends_in_one_line_and_keeps_the_old_set(tmp_path, small_log):
     """A file-size limit (EFBIG) stands in for a full disk: exit 1, the old outputs kept."""
     out = tmp_path / "out"

@@ -22,6 +22,18 @@ def test_every_sweep_of_the_suite_loads_with_known_and_ml_beside_mm_nh():
         assert {"known", "ml", "mm-nh"} <= set(config.methods)
 
 
+def test_the_numerics_suite_runs_every_method_and_known_da_over_many_seeds():
+    names = suite("numerics")
+    assert "numerics-tags-known" in names and len(names) >= 5
+    methods = set()
+    for name in names:
+        config = load_sweep_config(config_path(f"sweeps/{name}.toml"))
+        methods |= set(config.methods)
+        if name == "numerics-tags-known":
+            assert config.methods == ("known",) and len(config.seeds) >= 31
+    assert {"known", "ml", "gpda", "mm", "mm-nh"} <= methods
+
+
 def test_near_is_within_the_margin_of_known_and_no_worse_than_ml():
     rows = [row("known", s, 1.0) for s in range(4)]
     rows += [row("ml", 0, 1.9), row("ml", 1, 1.5), row("ml", 2, 9.0), row("ml", 3, 9.0)]
@@ -34,13 +46,15 @@ def test_near_is_within_the_margin_of_known_and_no_worse_than_ml():
 
 def test_the_table_holds_each_methods_figures_over_its_seeds():
     rows = [row("known", s, 1.0, runtime_s=2.0, landmarks_per_true=1.0) for s in range(2)]
-    rows += [row("mm-nh", 0, 1.0, runtime_s=4.0, landmarks_per_true=1.1, one_to_one_wrong=3)]
-    rows += [row("mm-nh", 1, 3.0, runtime_s=6.0, landmarks_per_true=1.3, one_to_one_wrong=5)]
+    rows += [row("mm-nh", 0, 1.0, runtime_s=4.0, landmarks_per_true=1.1, one_to_one_wrong=3,
+                 fallbacks_batch=2, fallbacks_qr=1)]  # fmt: skip
+    rows += [row("mm-nh", 1, 3.0, runtime_s=6.0, landmarks_per_true=1.3, one_to_one_wrong=5,
+                 fallbacks_batch=1, fallbacks_qr=0)]  # fmt: skip
     table = suite_table({"robust-city": rows})
     (line,) = [x for x in table.splitlines() if "MM + NH" in x]
     cells = [c.strip() for c in line.strip("|").split("|")]
     # missed associations were not recorded for these runs: "-"
     assert cells == ["city", "MM + NH", "2.00", "2.00", "3.00", "4.0", "-", "0.0", "1.20",
-                     "5.0", "1 / 2"]  # fmt: skip
+                     "5.0", "4", "1 / 2"]  # fmt: skip
     (known,) = [x for x in table.splitlines() if "Known DA" in x]
     assert known.rstrip(" |").endswith("-")  # Known DA is the reference, never near itself

@@ -10,7 +10,7 @@ from gtsam.symbol_shorthand import L, X
 
 from data_tools.scenarios import simulate
 from pipeline.backend.factors import pose_from_message
-from pipeline.backend.solver import Isam2Solver, gtsam_reason
+from pipeline.backend.solver import Isam2Solver, gtsam_reason, landmarks_last
 from pipeline.config import load_config
 from pipeline.errors import SolverError
 from pipeline.log import read_log
@@ -97,6 +97,52 @@ def replace_the_prior(solvers: tuple[Isam2Solver, ...], handles) -> None:
         solver.remove(prior)
         solver.add(gtsam.PriorFactorPoint3(L(0), np.array([2.5, 3.0, 0.0]), NOISE_3))
         solver.update()
+
+
+def wide_pose_then_a_landmark(solver) -> None:
+    """A pose known to 10 m (a long drive's marginal), then in one update the next pose 1 mm
+    from it (odometry) and a landmark seen from both at 0.3 m: eliminated last, the new pose's
+    pivot is its 10 m marginal against its 1 mm diagonal, (1e-3 / 10)^2 < 2^-24."""
+    wide = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-2] * 3 + [10.0] * 3))
+    solver.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), wide))
+    solver.insert(X(0), gtsam.Pose3())
+    solver.update()
+    solver.add(
+        gtsam.BetweenFactorPose3(X(0), X(1), STEP, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3))
+    )
+    solver.insert(X(1), STEP)
+    seen = gtsam.noiseModel.Isotropic.Sigma(3, 0.3)
+    for key, offset in ((X(0), [1.0, 2.0, 0.0]), (X(1), [0.0, 2.0, 0.0])):
+        bearing, distance = gtsam.Unit3(np.array(offset)), float(np.linalg.norm(offset))
+        solver.add(gtsam.BearingRangeFactor3D(key, L(0), bearing, distance, seen))
+    solver.insert(L(0), np.array([1.0, 2.0, 0.0]))
+
+
+def graph_of(factors) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        graph.add(factor)
+    return graph
+
+
+def test_an_update_eliminates_its_landmarks_after_its_poses():
+    """GTSAM's own order (the variables of new factors last, in COLAMD's order) refuses this
+    small graph; the solver's (`landmarks_last`) takes it without a fallback."""
+    config = load_config().isam2
+    default_order = Isam2Solver(config)
+    default_order._incremental = lambda: default_order.isam.update(
+        graph_of(default_order._pending.values()), default_order._values
+    )
+    wide_pose_then_a_landmark(default_order)
+    default_order.update()
+    assert default_order.fallbacks[0].kind == "batch"  # refused
+    solver = Isam2Solver(config)
+    wide_pose_then_a_landmark(solver)
+    groups = landmarks_last(graph_of(solver._pending.values()))
+    assert (groups.at(X(0)), groups.at(X(1)), groups.at(L(0))) == (1, 1, 2)
+    solver.update()
+    assert solver.fallbacks == []
+    np.testing.assert_allclose(solver.point(L(0)), [1.0, 2.0, 0.0], atol=1e-6)
 
 
 def test_an_update_cholesky_refuses_is_solved_again_in_batch_and_cholesky_kept():
@@ -265,15 +311,15 @@ def test_other_failures_end_in_one_line():
     assert "\n" not in str(raised.value)
 
 
-@pytest.fixture(scope="module")
-def generous_planar_log(tmp_path_factory):
+@pytest.fixture(scope="module", params=[2, 5])
+def generous_planar_log(request, tmp_path_factory):
     """A planar log whose bearing sigma is stated at 0.2 rad (elevation 0.01): the set-up that
     made an isotropic direction noise leave z, roll and pitch to the stiff odometry alone."""
     folder = tmp_path_factory.mktemp("planar")
     config = folder / "generous.toml"
     config.write_text("[route]\nlength_m = 250.0\n[scanner]\nstated_sigma_bearing_rad = 0.2\n")
     log = folder / "planar.mcap"
-    simulate("planar-park", log, seed=2, config_path=config, foxglove=False)
+    simulate("planar-park", log, seed=request.param, config_path=config, foxglove=False)
     return log
 
 
@@ -287,16 +333,22 @@ def dead_reckoning_rmse(log_path) -> float:
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("method", ["known", "ml", "mm-nh"])
 def test_a_planar_log_with_stiff_odometry_replays(tmp_path, generous_planar_log, method):
+    """Solved without a fallback by every method, within the odometry's own error's reach:
+    the log states its biased odometry as tight white noise and its bearings 40 times too
+    loose, so the estimate leans on the odometry (Known DA within 1.3x of dead reckoning on
+    six seeds, ML and MM + NH within 3.5x); a broken solve ends hundreds of metres away."""
     result = replay(generous_planar_log, method, tmp_path / method, load_config(), progress=False)
     assert result.num_poses == 501
+    assert result.metrics["solver_fallbacks"] == {"batch": 0, "qr": 0}
     rmse = result.metrics["translation_error_m"]["rmse"]
-    assert np.isfinite(rmse)
-    if method == "known":  # the true landmarks correct the odometry's drift
-        assert rmse < dead_reckoning_rmse(generous_planar_log)
+    assert rmse < (1.5 if method == "known" else 4.0) * dead_reckoning_rmse(generous_planar_log)
 
 
+@pytest.mark.e2e
 def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
     """A NaN estimate (a diverged solve) stops the replay with one line, not a traceback from
     wherever the NaN is first used."""
@@ -317,15 +369,22 @@ def test_a_diverged_estimate_ends_in_one_line(tmp_path, monkeypatch):
     assert "\n" not in str(e.value) and len(calls) > 3
 
 
-def test_known_association_does_not_fold_where_cholesky_refused_a_bent_loop(tmp_path):
-    """indoor-tags, odometry noise x6 stated right, seed 2: a loop closure's step bends the
-    stiff odometry and Cholesky refuses an update later. Incremental steps from there (QR,
-    Dogleg) ended 40 m from the truth with every association right; the batch solve ends
-    near it, as Known DA does on the other seeds."""
+# Seeds 2, 4 and 6 are where Cholesky refused a graph with the detections measured through a
+# virtual stereo camera (numerics-tags-known runs 31 seeds: make bench, the numerics suite).
+@pytest.mark.slow
+@pytest.mark.e2e
+@pytest.mark.parametrize("seed", [2, 4, 6])
+def test_known_association_solves_a_bent_loop_without_a_fallback(tmp_path, seed):
+    """indoor-tags, odometry noise x6 stated right: a loop closure's first step bends the
+    stiff odometry. Measured through a projection, tags a metre or two away ended behind the
+    camera, their Jacobians vanished, Gauss-Newton diverged and Cholesky refused the graph
+    (seed 2 ended 11 m from the truth on another CPU, every association right). Measured as
+    the Cartesian residual it is, the graph is solved as it stands."""
     log = tmp_path / "tags.mcap"
     simulate(
-        "indoor-tags", log, seed=2, odom_noise_scale=6.0, misclassification=0.1,
+        "indoor-tags", log, seed=seed, odom_noise_scale=6.0, misclassification=0.1,
         true_covariance=True, foxglove=False,
     )  # fmt: skip
     result = replay(log, "known", tmp_path / "known", load_config(), progress=False)
+    assert result.metrics["solver_fallbacks"] == {"batch": 0, "qr": 0}
     assert result.metrics["translation_error_m"]["rmse"] < 3.0

@@ -102,6 +102,8 @@ def tiny_sweep(tmp_path_factory):
 # --- end to end -------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_tiny_sweep_end_to_end(tiny_sweep):
     config, out, summary = tiny_sweep
     assert (summary.total, summary.new, summary.kept, summary.failed) == (9, 9, 0, ())
@@ -166,6 +168,8 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
     assert record["inputs"][0]["path"] == str(config)
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_resumption_skips_finished_runs_and_gives_the_same_tables(
     tiny_sweep, tmp_path, monkeypatch
 ):
@@ -200,13 +204,15 @@ def test_resumption_skips_finished_runs_and_gives_the_same_tables(
     assert without_runtime(read_results(out / "results.csv")) == without_runtime(results)
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_sweep, tmp_path):
     config, first, _ = tiny_sweep
     out = tmp_path / "out"
     shutil.copytree(first, out)
     older = out / "runs/noise0-mis0.1/seed0/ml/metrics.json"
     metrics = json.loads(older.read_text())
-    for key in ("association_one_to_one", "merges", "noise_scales"):
+    for key in ("association_one_to_one", "merges", "noise_scales", "solver_fallbacks"):
         del metrics[key]
     older.write_text(json.dumps(metrics))
 
@@ -222,6 +228,8 @@ def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_swe
     assert ml.split(" | ")[7:10] == ["-", "-", "-"]  # wrong, missed, landmarks per true one
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, tmp_path, capsys):
     _, first, _ = tiny_sweep
     out = tmp_path / "out"
@@ -247,6 +255,8 @@ def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, t
         run_sweep(config, out, seeds=0, progress=False)
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, tmp_path, monkeypatch):
     config, first, _ = tiny_sweep
     out = tmp_path / "out"
@@ -275,6 +285,8 @@ def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, tmp_path, mon
     assert without_times(tables) == without_times((first / "tables.md").read_text())
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_dask_cluster_runs_the_same_runs(tiny_sweep, tmp_path):
     distributed = pytest.importorskip("distributed")
     _, first, _ = tiny_sweep
@@ -502,6 +514,8 @@ def test_bad_sweep_configs_are_input_errors(tmp_path, case):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_bad_output_folders_and_workers_are_input_errors(tiny_sweep, tmp_path):
     config, _, _ = tiny_sweep
     with pytest.raises(InputError, match="--workers"):
@@ -515,6 +529,8 @@ def test_bad_output_folders_and_workers_are_input_errors(tiny_sweep, tmp_path):
         run_sweep(config, tmp_path / "full")
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_a_folder_of_another_set_up_is_refused(tiny_sweep, tmp_path):
     _, first, _ = tiny_sweep
     out = tmp_path / "out"

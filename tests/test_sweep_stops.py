@@ -85,6 +85,8 @@ def finished(out: Path) -> set[Path]:
     return set(out.glob("runs/*/*/[!.]*/metrics.json"))
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
 def test_a_stopped_sweep_takes_its_workers_with_it_and_resumes(tmp_path, how):
     sweep, out = start_sweep(tmp_path)

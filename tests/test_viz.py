@@ -38,7 +38,7 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.replay import ReplayResult, replay
-from pipeline.viz import draw, marks
+from pipeline.viz import draw, marks, stream
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
 from pipeline.viz.rerun_sink import RerunSink
@@ -129,6 +129,7 @@ def square_run(tmp_path_factory) -> SquareRun:
 
 
 # ----------------------------------------------------------------------------- the replay
+@pytest.mark.e2e
 def test_every_pose_is_logged_once_on_both_timelines(square_run):
     log, result, _, _, rrd, _ = square_run
     robot = data_rows(read_rows(rrd)[e.ROBOT], "Transform3D:translation")
@@ -137,6 +138,7 @@ def test_every_pose_is_logged_once_on_both_timelines(square_run):
     assert [r["log_time"].value for r in robot] == list(stamps)
 
 
+@pytest.mark.e2e
 def test_the_trajectory_grows_every_keyframe_and_ends_as_the_final_estimate(square_run):
     _, result, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
@@ -154,6 +156,7 @@ def test_the_trajectory_grows_every_keyframe_and_ends_as_the_final_estimate(squa
     np.testing.assert_allclose(final_strip, truth, atol=1e-4)  # float32 in the recording
 
 
+@pytest.mark.e2e
 def test_every_landmark_has_its_entity_ending_at_the_final_estimate(square_run):
     log, _, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
@@ -179,6 +182,7 @@ def test_every_landmark_has_its_entity_ending_at_the_final_estimate(square_run):
     assert len(data_rows(shapes, "Ellipsoids3D:centers")) < len(final.poses)  # not a keyframe
 
 
+@pytest.mark.e2e
 def test_each_detection_shows_every_hypothesis_and_one_winner(square_run):
     _, _, _, expected, rrd, _ = square_run
     rows = data_rows(read_rows(rrd)[e.HYPOTHESES], "LineStrips3D:strips")
@@ -203,6 +207,7 @@ def test_each_detection_shows_every_hypothesis_and_one_winner(square_run):
     assert lines > sum(len(d) for d in expected.values())  # some detections had rivals
 
 
+@pytest.mark.e2e
 def test_only_the_landmarks_a_keyframe_weighs_are_labelled(square_run):
     rrd = square_run.rrd
     rows = read_rows(rrd)
@@ -233,6 +238,7 @@ def test_only_the_landmarks_a_keyframe_weighs_are_labelled(square_run):
     assert left_out > 0  # the square's landmarks are close enough, seen whole, to crowd
 
 
+@pytest.mark.e2e
 def test_time_series_follow_the_run(square_run):
     log, result, final, _, rrd, _ = square_run
     rows = read_rows(rrd)
@@ -255,6 +261,7 @@ def test_time_series_follow_the_run(square_run):
         )
 
 
+@pytest.mark.e2e
 def test_keyframe_times_are_plotted_as_trailing_medians(square_run):
     rrd, step_ms = square_run.rrd, square_run.sink.step_ms
     plotted = [r["Scalars:scalars"][0] for r in data_rows(read_rows(rrd)[e.STEP_MS], "pose")]
@@ -264,6 +271,7 @@ def test_keyframe_times_are_plotted_as_trailing_medians(square_run):
     assert np.std(np.diff(plotted)) < np.std(np.diff(step_ms))  # smoother than the raw times
 
 
+@pytest.mark.e2e
 def test_the_summary_follows_the_run(square_run):
     _, result, final, _, rrd, _ = square_run
     rows = data_rows(read_rows(rrd)[e.SUMMARY], "TextDocument:text")
@@ -279,14 +287,18 @@ def test_the_summary_follows_the_run(square_run):
     assert all(r["TextDocument:media_type"] == ["text/markdown"] for r in rows)
 
 
+@pytest.mark.e2e
 def test_the_null_rate_starts_at_pose_zero(tmp_path):
     log_path = write_image_log(tmp_path / "late.mcap", num_poses=5, first_detection=3)
     sink = RerunSink.open("test", rrd=tmp_path / "late.rrd", config=viz_config(image_every=0))
     replay(log_path, "mm-nh", tmp_path / "out", load_config(), sink=sink, progress=False)
     rates = data_rows(read_rows(tmp_path / "late.rrd")[e.NULL_RATE], "Scalars:scalars")
-    assert [(r["pose"], r["Scalars:scalars"][0]) for r in rates] == [(i, 0.0) for i in range(5)]
+    assert [r["pose"] for r in rates] == list(range(5))
+    # a rate of no nulls: 0 to round-off
+    np.testing.assert_allclose([r["Scalars:scalars"][0] for r in rates], 0.0, rtol=0, atol=1e-12)
 
 
+@pytest.mark.e2e
 @pytest.mark.filterwarnings("error::rerun.error_utils.RerunWarning")
 def test_the_recording_opens_with_its_layout(square_run):
     rrd = square_run.rrd
@@ -320,6 +332,7 @@ def event_rows(rows) -> list[tuple[int, str, str]]:
     ]
 
 
+@pytest.mark.e2e
 def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
     """The kidnap scene with the paper's settings: mm-nh first closes the loop on the
     lookalike, then switches the detection to the null hypothesis once the other landmarks
@@ -367,6 +380,7 @@ def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
     assert NULL in [row["landmark"][n] for n in mine] and len(mine) >= 2
 
 
+@pytest.mark.e2e
 def test_wrong_associations_are_red_and_counted(tmp_path):
     """Maximum likelihood takes the kidnap's alias for the lookalike: that detection's line is
     red at its keyframe, a red line at the end, and the count the metrics give."""
@@ -430,6 +444,7 @@ def test_merges_are_marked_where_they_happen(square_run):
     assert totals[-1]["Scalars:scalars"] == [square_run.final.merges]
 
 
+@pytest.mark.e2e
 def test_what_needs_a_look_is_a_warning(tmp_path):
     """With thresholds of one, the kidnap's switch is both a large correction and an
     unsettled detection; the null-hypothesis win stays the method at work."""
@@ -473,6 +488,7 @@ def write_image_log(path: Path, num_poses: int = 3, first_detection: int = 0) ->
     return path
 
 
+@pytest.mark.e2e
 def test_images_are_shown_with_their_labelled_boxes(tmp_path):
     log_path = write_image_log(tmp_path / "images.mcap")
     sink = RerunSink.open("test", rrd=tmp_path / "images.rrd")
@@ -489,6 +505,7 @@ def test_images_are_shown_with_their_labelled_boxes(tmp_path):
     assert ("2D", e.CAMERA) in blueprint_views(tmp_path / "images.rrd")
 
 
+@pytest.mark.e2e
 def test_no_images_are_read_when_none_are_wanted(tmp_path):
     log_path = write_image_log(tmp_path / "images.mcap")
     sink = RerunSink.open("test", rrd=tmp_path / "none.rrd", config=viz_config(image_every=0))
@@ -499,6 +516,8 @@ def test_no_images_are_read_when_none_are_wanted(tmp_path):
     assert ("2D", e.CAMERA) not in blueprint_views(tmp_path / "none.rrd")
 
 
+@pytest.mark.slow
+@pytest.mark.e2e
 def test_frontend_keyframes_are_shown(tmp_path):
     from data_tools.render import render_sequence
     from pipeline.frontend.run import run_frontend
@@ -535,6 +554,7 @@ def test_frontend_keyframes_are_shown(tmp_path):
 
 
 # ----------------------------------------------------------------------- cost, bad input
+@pytest.mark.e2e
 def test_a_plain_replay_never_imports_rerun(tmp_path):
     log_path = write_image_log(tmp_path / "plain.mcap")
     script = (
@@ -578,14 +598,22 @@ def test_rerun_turned_off_is_bad_input(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_connect_needs_a_viewer(tmp_path):
+def test_connect_needs_a_viewer(tmp_path, monkeypatch):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    started = time.perf_counter()
+    timeouts = []
+    connect = socket.create_connection
+
+    def spy(address, timeout=None, *args, **kwargs):
+        timeouts.append(timeout)
+        return connect(address, timeout, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "create_connection", spy)
     with pytest.raises(InputError, match="no Rerun viewer listening"):
         RerunSink.open("test", connect=f"127.0.0.1:{port}")
-    assert time.perf_counter() - started < 10
+    # one look, bounded: without a viewer the answer comes, whatever the machine's load
+    assert timeouts == [stream.VIEWER_WAIT_S] and 0 < stream.VIEWER_WAIT_S <= 10
 
 
 @pytest.mark.parametrize(
@@ -613,6 +641,7 @@ class Failing(RerunSink):
         super().keyframe(report, backend)
 
 
+@pytest.mark.e2e
 def test_a_failed_run_leaves_the_earlier_recording(tmp_path):
     log_path = write_image_log(tmp_path / "log.mcap")
     target = tmp_path / "run.rrd"
@@ -636,6 +665,39 @@ def test_the_command_line_leaves_nothing_behind_on_bad_input(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def wait_until(condition, what: str, timeout_s: float = 60.0):
+    """The first true value of `condition()`, asked every 50 ms; the test fails if none comes
+    within `timeout_s` (a deadline for a machine under load, not a time the test measures)."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := condition()):
+        if time.monotonic() > deadline:
+            pytest.fail(f"gave up after {timeout_s:.0f} s waiting for {what}")
+        time.sleep(0.05)
+    return value
+
+
+def accepting(port: int) -> bool:
+    try:
+        socket.create_connection(("127.0.0.1", port), 0.2).close()
+    except OSError:
+        return False
+    return True
+
+
+def received_robot_rows(path: Path, num_poses: int) -> list[dict] | None:
+    """The robot's transforms in the recording a server is saving, once all `num_poses` are
+    in (None before: the file may be missing yet, or end within a message)."""
+    if not path.exists():
+        return None
+    try:
+        rows = read_rows(path)
+    except Exception:  # a recording still being written; Rerun's reader says so in several ways
+        return None
+    robot = data_rows(rows.get(e.ROBOT, []), "Transform3D:translation")
+    return robot if len(robot) >= num_poses else None
+
+
+@pytest.mark.e2e
 @pytest.mark.filterwarnings("ignore:RRD file has no footer")
 def test_streams_to_a_running_viewer(tmp_path):
     """`--connect`: a headless Rerun server saving what it receives stands in for a viewer."""
@@ -655,22 +717,18 @@ def test_streams_to_a_running_viewer(tmp_path):
         start_new_session=True,
     )
     try:
-        deadline = time.monotonic() + 30
-        while time.monotonic() < deadline:
-            try:
-                socket.create_connection(("127.0.0.1", port), 0.2).close()
-                break
-            except OSError:
-                time.sleep(0.1)
+        wait_until(lambda: accepting(port), "the Rerun server to listen")
         log_path = write_image_log(tmp_path / "log.mcap")
         sink = RerunSink.open("test", connect=str(port))
         result = replay(log_path, "known", tmp_path / "out", load_config(), sink=sink,
                         progress=False)  # fmt: skip
-        time.sleep(1.0)  # the server writes what it received
+        # the server saves what it receives as it comes: wait until every pose is in
+        robot = wait_until(
+            lambda: received_robot_rows(saved, result.num_poses), "the server to save every pose"
+        )
     finally:
         os.killpg(server.pid, signal.SIGTERM)
         server.wait(timeout=30)
-    robot = data_rows(read_rows(saved)[e.ROBOT], "Transform3D:translation")
     assert [r["pose"] for r in robot] == list(range(result.num_poses))
 
 

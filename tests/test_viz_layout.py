@@ -71,12 +71,14 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.e2e
 def test_every_view_draws_what_the_run_recorded(runs):
     for _, rrd in runs:
         assert unfed_views(rrd) == []
         assert unseen_entities(rrd) == []
 
 
+@pytest.mark.e2e
 def test_the_views_follow_what_the_log_holds(runs):
     (_, truth), (_, images) = runs
     names = {v.name for v in blueprint(truth)}
@@ -85,6 +87,7 @@ def test_the_views_follow_what_the_log_holds(runs):
     assert names == {"Map", "Association events", "Summary", "Left camera", WRONG} | PLOTS
 
 
+@pytest.mark.e2e
 def test_the_default_eye_sees_the_whole_run_and_its_legend_from_above(runs):
     _, rrd = runs[0]
     (view,) = [v for v in blueprint(rrd) if v.name == "Map"]
@@ -132,6 +135,7 @@ def swatch_colours(rows) -> dict[str, int]:
     ) | dict(zip(latest(marks, "Points3D:labels"), latest(marks, "Points3D:colors"), strict=True))
 
 
+@pytest.mark.e2e
 def test_the_legend_names_the_colours_of_the_map(runs):
     log, rrd = runs[0]
     rows = read_rows(rrd)
@@ -238,6 +242,7 @@ def test_the_history_of_decisions_is_shown_up_to_the_cursor(runs):
     assert "VisibleTimeRanges" not in view.properties
 
 
+@pytest.mark.e2e
 def test_the_event_log_shows_level_and_text_and_the_uncertainty_layer_is_off(runs):
     _, rrd = runs[0]
     views = {v.name: v for v in blueprint(rrd)}

@@ -2,7 +2,8 @@
 here only. Floats are written in Python's shortest round-trip form, so reading gives back the
 very numbers written.
 
-The optional columns (the one-to-one association scores, merges, the back-end's noise scales)
+The optional columns (the one-to-one association scores, merges, the back-end's noise scales,
+its solver fallbacks)
 are None, an empty field, wherever a run's metrics.json lacks them: runs made before the
 back-end recorded them are kept, not re-run, and a results.csv written before the columns
 existed reads with them empty.
@@ -66,6 +67,9 @@ class ResultRow:
     variance_scale_elevation: float | None = None
     variance_scale_range: float | None = None
     odometry_scale_moves: int | None = None
+    # metrics.json's solver_fallbacks: graphs Cholesky refused (each a bug), by what followed
+    fallbacks_batch: int | None = None
+    fallbacks_qr: int | None = None
 
 
 COLUMNS: tuple[str, ...] = tuple(f.name for f in fields(ResultRow))
@@ -107,6 +111,10 @@ def optional_columns(metrics: dict[str, Any]) -> dict[str, Any]:
     values.update(zip(MEASUREMENT_SCALES, measurement, strict=True))
     moves = scales.get("odometry_moves")
     values["odometry_scale_moves"] = len(moves) if isinstance(moves, list) else None
+    fallbacks = metrics.get("solver_fallbacks")
+    fallbacks = fallbacks if isinstance(fallbacks, dict) else {}
+    values["fallbacks_batch"] = fallbacks.get("batch")
+    values["fallbacks_qr"] = fallbacks.get("qr")
     return {c: _optional(v, _TYPES[c]) for c, v in values.items()}
 
 

@@ -55,6 +55,34 @@ class MethodSummary:
     switches: float
 
 
+@dataclass(frozen=True)
+class SlowestRun:
+    """The run that took longest against its own cell and method's median replay time."""
+
+    ratio: float  # its runtime over the median of its cell and method's runs
+    cell: str
+    method: str
+    seed: int
+
+
+def slowest_run(rows: Sequence[ResultRow]) -> SlowestRun | None:
+    """The largest runtime / median runtime over the runs of each (cell, method) with two
+    seeds or more: where a run's cost ran away (no run should exceed 3x)."""
+    groups: dict[tuple[str, str], list[ResultRow]] = {}
+    for r in rows:
+        groups.setdefault((r.cell, r.method), []).append(r)
+    slowest = None
+    for (cell, method), runs in groups.items():
+        median = statistics.median(r.runtime_s for r in runs)
+        if len(runs) < 2 or median <= 0:
+            continue
+        worst = max(runs, key=lambda r: r.runtime_s)
+        ratio = worst.runtime_s / median
+        if slowest is None or ratio > slowest.ratio:
+            slowest = SlowestRun(ratio, cell, method, worst.seed)
+    return slowest
+
+
 def rows_of_cell(rows: Sequence[ResultRow], cell: Cell) -> list[ResultRow]:
     return [r for r in rows if r.cell == cell.name]
 

@@ -25,8 +25,8 @@ from data_tools.sweep.executors import default_workers, execute
 from data_tools.sweep.grid import RUNS_DIR, RunKey, log_path, run_dir, runs
 from data_tools.sweep.reporting import DESCRIPTION_NAME, read_description, write_report
 from data_tools.sweep.results import RESULTS_NAME, row_from_metrics, write_results
-from data_tools.sweep.stats import headlines
-from data_tools.sweep.tables import headline_text
+from data_tools.sweep.stats import headlines, slowest_run
+from data_tools.sweep.tables import headline_text, slowest_text
 from data_tools.sweep.work import (
     ERROR_FILE,
     RunOutcome,
@@ -52,6 +52,7 @@ class SweepSummary:
     seconds: float
     files: tuple[Path, ...]  # results.csv, tables.md, figures
     method_lines: tuple[str, ...] = ()  # per method: mean translation RMSE, wins against ML
+    slowest: str = ""  # the run slowest against its cell's median (`stats.slowest_run`)
 
     def summary_line(self) -> str:
         line = (
@@ -59,6 +60,8 @@ class SweepSummary:
             f"{f', {len(self.failed)} failed' if self.failed else ''}) in {self.seconds:.0f} s"
             f" -> {', '.join(str(f) for f in self.files)}"
         )
+        if self.slowest:
+            line += f"; {self.slowest}"
         if self.failed:
             line += f"; first failure: {self.failed[0]} (see its {ERROR_FILE})"
         return line
@@ -274,4 +277,5 @@ def run_sweep(
         seconds=time.perf_counter() - start,
         files=tuple(files),
         method_lines=tuple(headline_text(h) for h in headlines(rows, config.methods)),
+        slowest=slowest_text(slowest) if (slowest := slowest_run(rows)) else "",
     )

@@ -20,11 +20,13 @@ from data_tools.sweep.stats import (
     Headline,
     MethodSummary,
     SeedSummary,
+    SlowestRun,
     comparisons,
     median_or_none,
     rows_of_cell,
     seed_summaries,
     series,
+    slowest_run,
     summarise_methods,
 )
 
@@ -46,6 +48,13 @@ RUNTIME_DIGITS = 1
 
 def method_name(method: str) -> str:
     return METHOD_NAMES.get(method, method)
+
+
+def slowest_text(slowest: SlowestRun) -> str:
+    return (
+        f"slowest run {slowest.ratio:.1f}x its cell's median ({slowest.cell}, "
+        f"{method_name(slowest.method)}, seed {slowest.seed})"
+    )
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -272,6 +281,11 @@ def render_tables(
         "changes after the first choice.\n",
         association_table(summaries),
     ]
+    slowest = slowest_run(rows)
+    if slowest is not None:
+        parts.append(
+            f"Replay time: the {slowest_text(slowest)}; a run past 3x is a cost that ran away.\n"
+        )
     for axis in config.axes:
         along = axis_cells(config, axis)
         title = f"{FACTOR_LABELS[axis.factor]}, {held_factor(config, axis)}"

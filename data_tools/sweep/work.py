@@ -143,7 +143,7 @@ def run_task(task: RunTask) -> RunOutcome:
             load_config(task.backend_config),
             progress=False,
         )
-        if result.metrics is None:
+        if "translation_error_m" not in result.metrics:
             raise ValueError(f"{task.log_path} has no ground truth to score the run against")
         (task.run_dir / ERROR_FILE).unlink(missing_ok=True)
         return RunOutcome(task.key, result.metrics, None, None, time.perf_counter() - start)

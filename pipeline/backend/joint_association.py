@@ -24,6 +24,7 @@ Pure numpy: the caller gathers residuals, Jacobians and the joint covariance.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -31,6 +32,9 @@ import numpy as np
 from pipeline.backend.association import LOG_2PI, chi2_gate
 
 NONE = -1
+# A node of the assignment search: depth, the pairs (detection, option) so far, the landmark
+# slots they hold, their joint log-likelihood, and the priors of every detection's choice.
+Node = tuple[int, list[tuple[int, int]], frozenset[int], float, float]
 
 
 @dataclass(frozen=True)
@@ -137,8 +141,12 @@ class _Search:
         self.max_nodes = max_nodes
         self.required = required
         n = len(problem.detections)
-        # Fewest options first: the tree narrows fastest.
-        self.order = sorted(range(n), key=lambda i: len(problem.detections[i].slots))
+        # The detections with candidates, fewest first: the tree narrows fastest. One without
+        # any is its null whatever the others do (null_total counts it), so it adds no level.
+        self.order = sorted(
+            (i for i in range(n) if len(problem.detections[i].slots)),
+            key=lambda i: len(problem.detections[i].slots),
+        )
         if required is not None:
             self.order.remove(required[0])
             self.order.insert(0, required[0])
@@ -153,14 +161,27 @@ class _Search:
         self.best_score = -math.inf
 
     def run(self) -> tuple[list[int] | None, float]:
-        self._visit(0, [], set(), 0.0, self.null_total)
+        """Depth first, branch and bound, on an explicit stack: a keyframe may hold more
+        detections with candidates than Python's recursion allows levels. Each frame of the
+        stack yields its node's children lazily, in the order a recursion would visit them."""
+        stack: list[Iterator[Node]] = []
+        self._enter(stack, (0, [], frozenset(), 0.0, self.null_total))
+        while stack and not self.exhausted:
+            child = next(stack[-1], None)
+            if child is None:
+                stack.pop()
+            else:
+                self._enter(stack, child)
         return self.best, self.best_score
 
-    def _visit(self, depth, pairs, used, log_lik, priors) -> None:
+    def _enter(self, stack: list[Iterator[Node]], node: Node) -> None:
+        """Visit `node` (depth, pairs, used slots, joint log-likelihood, priors): bound it,
+        take it as the best if it is a full assignment, else push its children."""
         self.nodes += 1
         if self.nodes > self.max_nodes:
             self.exhausted = True
             return
+        depth, pairs, _, log_lik, priors = node
         current = log_lik + priors
         if current + self.remaining_gain[depth] <= self.best_score:
             return
@@ -170,6 +191,12 @@ class _Search:
                 assignment[i] = k
             self.best, self.best_score = assignment, current
             return
+        stack.append(self._children(node))
+
+    def _children(self, node: Node) -> Iterator[Node]:
+        """The node's detection paired with each option its gate admits, then left to its
+        null (not for the required pairing)."""
+        depth, pairs, used, log_lik, priors = node
         i = self.order[depth]
         det = self.problem.detections[i]
         options = range(len(det.slots))
@@ -183,15 +210,10 @@ class _Search:
             dims = sum(self.problem.detections[a].dim for a, _ in trial)
             if d2 > self.gates[dims]:
                 continue
-            self._visit(
-                depth + 1,
-                trial,
-                used | {det.slots[k]},
-                trial_lik,
-                priors - det.null_log_density + det.log_prior[k],
-            )
+            prior = priors - det.null_log_density + det.log_prior[k]
+            yield depth + 1, trial, used | {det.slots[k]}, trial_lik, prior
         if self.required is None or depth > 0:
-            self._visit(depth + 1, pairs, used, log_lik, priors)
+            yield depth + 1, pairs, used, log_lik, priors
 
 
 def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> bool:

@@ -83,6 +83,45 @@ def pair_groups(pairs: list[tuple[int, int]], loop: list[bool]) -> list[list[int
     return list(groups.values())
 
 
+class _PartnerSearch:
+    """A merge check's cheap search for each source's partners: mapped point landmarks within
+    reach, classes agreeing, within the gate of the two covariance bounds, never seen in the
+    same keyframe; the `max_partners` nearest. Sightings are gathered once a check."""
+
+    def __init__(self, finder: MergeFinder, gate: float, widest: float):
+        self.finder = finder
+        self.gate = gate
+        self.widest = widest
+        self._seen_at: dict[int, set[int]] = {}
+
+    def seen_at(self, j: int) -> set[int]:
+        if j not in self._seen_at:
+            self._seen_at[j] = self.finder.context.observed_at(j)
+        return self._seen_at[j]
+
+    def partners(self, a: int) -> list[int]:
+        c, lms, bound = self.finder.config, self.finder.context.landmarks, self.finder.bound
+        spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound(a))[-1]))
+        position = lms.position(a)
+        reach = c.search_sigmas * spread * math.sqrt(self.widest) + self.finder.margin_m
+        near = [b for b in lms.near(LandmarkKind.POINT, position, reach) if b != a]
+        if not near:
+            return []
+        classes = np.array([lms.landmarks[b].class_probabilities for b in near])
+        agrees = classes @ lms.landmarks[a].class_probabilities >= c.min_class_agreement
+        near = [b for b, agree in zip(near, agrees, strict=True) if agree]
+        offsets = position - np.array([lms.position(b) for b in near]).reshape(-1, DIM)
+        spreads = 2.0 * (bound(a) + np.array([bound(b) for b in near]).reshape(-1, DIM, DIM))
+        d2 = assoc.mahalanobis_squared_batch(offsets, spreads)
+        # Two landmarks seen in the same keyframe are two landmarks.
+        found = [
+            (float(distance), b)
+            for b, distance in zip(near, d2, strict=True)
+            if distance <= self.gate and not self.seen_at(a) & self.seen_at(b)
+        ]
+        return [b for _, b in sorted(found)[: c.max_partners]]
+
+
 class MergeFinder:
     def __init__(
         self,
@@ -124,54 +163,20 @@ class MergeFinder:
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
         marginal over them all must stay cheap, also after a long drift). `widest`: the
-        largest drift scale a loop is tested at, relative to the map's covariance."""
+        largest drift scale a loop is tested at, relative to the map's covariance. A source's
+        partners are looked for only when its turn comes, so a keyframe that started thousands
+        of landmarks costs the budget's worth of searches, not thousands."""
         context, c = self.context, self.config
-        lms = context.landmarks
         sources = self.sources(pose_index)
         if not sources:
             return []
         # A loop's partner may be as far as the `widest` drift scale tested puts it.
         gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence)) * widest
-        bound = {j: self._bound(j) for j in sources}
-        seen_at: dict[int, set[int]] = {}
-        partners: dict[int, list[tuple[float, int]]] = {}
-        for a in sources:
-            spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound[a])[-1]))
-            position = lms.position(a)
-            reach = c.search_sigmas * spread * math.sqrt(widest) + self.margin_m
-            near = [b for b in lms.near(LandmarkKind.POINT, position, reach) if b != a]
-            if not near:
-                partners[a] = []
-                continue
-            classes = np.array([lms.landmarks[b].class_probabilities for b in near])
-            near = [
-                b
-                for b, agreement in zip(
-                    near, classes @ lms.landmarks[a].class_probabilities, strict=True
-                )
-                if agreement >= c.min_class_agreement
-            ]
-            for b in near:
-                if b not in bound:
-                    bound[b] = self._bound(b)
-            offsets = position - np.array([lms.position(b) for b in near]).reshape(-1, DIM)
-            spreads = 2.0 * (bound[a] + np.array([bound[b] for b in near]).reshape(-1, DIM, DIM))
-            d2 = assoc.mahalanobis_squared_batch(offsets, spreads)
-            found = []
-            for b, distance in zip(near, d2, strict=True):
-                if distance > gate:
-                    continue
-                for j in (a, b):
-                    if j not in seen_at:
-                        seen_at[j] = context.observed_at(j)
-                if seen_at[a] & seen_at[b]:
-                    continue  # seen together: two landmarks
-                found.append((float(distance), b))
-            partners[a] = sorted(found)[: c.max_partners]
+        search = _PartnerSearch(self, gate, widest)
         pairs: set[tuple[int, int]] = set()
         involved: set[int] = set()
-        for a in sorted(partners, key=lambda j: -context.last_seen.get(j, -1)):
-            mine = {(min(a, b), max(a, b)) for _, b in partners[a]} - pairs
+        for a in sorted(sources, key=lambda j: -context.last_seen.get(j, -1)):
+            mine = {(min(a, b), max(a, b)) for b in search.partners(a)} - pairs
             more = {j for pair in mine for j in pair} - involved
             if len(involved) + len(more) > c.max_landmarks:
                 break
@@ -207,7 +212,9 @@ class MergeFinder:
         R, _ = estimates.pose(latest.pose_index)
         return world_point_covariance(R, latest.vector, latest.covariance)
 
-    def _bound(self, landmark_id: int) -> np.ndarray:
+    def bound(self, landmark_id: int) -> np.ndarray:
+        """The landmark's marginal covariance: an upper bound on it while no factor on it is
+        removed (the map only gains information), so cached until then."""
         landmark = self.context.landmarks.landmarks[landmark_id]
         if landmark.covariance_bound is None:
             landmark.covariance_bound = self.context.solver.marginal_covariance(L(landmark_id))

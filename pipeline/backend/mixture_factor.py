@@ -29,9 +29,15 @@ class Component:
     constant: float  # -log w + 0.5 log det(2 pi Sigma)
 
 
-def component(factor: gtsam.NoiseModelFactor, weight: float) -> Component:
-    covariance = factor.noiseModel().covariance()
-    return Component(factor, -math.log(weight) + gaussian_log_normaliser(covariance))
+def component(
+    factor: gtsam.NoiseModelFactor, weight: float, log_normaliser: float | None = None
+) -> Component:
+    """`factor` with association weight `weight`; its Gaussian's normaliser `log_normaliser`
+    (0.5 log det(2 pi Gamma) in the measurement's own coordinates, where the null's cost is
+    set), by default its noise model's."""
+    if log_normaliser is None:
+        log_normaliser = gaussian_log_normaliser(factor.noiseModel().covariance())
+    return Component(factor, -math.log(weight) + log_normaliser)
 
 
 class MaxMixtureFactor:

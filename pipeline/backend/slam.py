@@ -30,7 +30,8 @@ from pipeline.backend.noise import (
     odometry_scale_move,
     updated,
 )
-from pipeline.backend.solver import Isam2Solver
+from pipeline.backend.planar import planar_prior_factors
+from pipeline.backend.solver import Isam2Solver, SolverFallback, fallback_counts
 from pipeline.config import Config
 from pipeline.log.messages import Detection, Odometry
 
@@ -52,6 +53,8 @@ class KeyframeReport:
     switched: list[AssociationRecord]
     seconds: float
     merged: list[tuple[int, int]] = field(default_factory=list)  # (duplicate, survivor) ids
+    # Graphs Cholesky refused at this keyframe, and what the solver did (each one a bug)
+    solver_fallbacks: list[SolverFallback] = field(default_factory=list)
 
 
 @dataclass
@@ -68,11 +71,15 @@ class BackendResult:
     # what the loops closed by merges said of the odometry's scale (`DriftScaleBelief.report`)
     loop_drift: dict | None = None
     step_seconds: list[float] = field(default_factory=list)
+    solver_fallbacks: dict[str, int] = field(default_factory=dict)  # by kind
 
 
 class Backend:
-    def __init__(self, config: Config, confusion: np.ndarray, method: str):
+    def __init__(self, config: Config, confusion: np.ndarray, method: str, planar: bool = False):
+        """`planar`: the log moves in a plane, stated as a prior on every pose's height and tilt
+        (`pipeline/backend/planar.py`, `[prior] planar`)."""
         self.config = config
+        self.planar = planar
         self.solver = Isam2Solver(config.isam2, config.landmarks.use_relative_pose)
         self.landmarks = LandmarkMap(num_classes=confusion.shape[0], cell_size=INDEX_CELL_SIZE_M)
         self.context = BackendContext(self.solver, self.landmarks, confusion, config)
@@ -137,6 +144,12 @@ class Backend:
             self.drift.add_step(step, np.reshape(odometry.covariance, (6, 6)))
             self._odometry.append((handle, odometry))
         self.solver.insert(X(index), pose)
+        if self.planar:
+            p = self.config.prior
+            for factor in planar_prior_factors(
+                X(index), p.planar_height_sigma_m, p.planar_tilt_sigma_rad
+            ):
+                self.solver.add(factor)
         return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
 
     def add_keyframe(
@@ -144,6 +157,7 @@ class Backend:
     ) -> KeyframeReport:
         """Predict, score candidates, choose factors, update iSAM2, revisit associations."""
         start = time.perf_counter()
+        fallbacks_before = len(self.solver.fallbacks)
         if (odometry is None) != (self.num_poses == 0):
             raise ValueError("odometry is needed for every keyframe but the first")
         prediction = self.predict(odometry)
@@ -188,7 +202,15 @@ class Backend:
         self.switches += len(switched)
         seconds = time.perf_counter() - start
         self.step_seconds.append(seconds)
-        return KeyframeReport(prediction.pose_index, records, candidates, switched, seconds, merged)
+        return KeyframeReport(
+            prediction.pose_index,
+            records,
+            candidates,
+            switched,
+            seconds,
+            merged,
+            self.solver.fallbacks[fallbacks_before:],
+        )
 
     def _changed(self, switched: list[AssociationRecord]) -> list[AssociationRecord]:
         """The records among `switched` whose landmark now differs from the one last reported
@@ -309,4 +331,5 @@ class Backend:
             odometry_moves=self.odometry_moves,
             loop_drift=None if self.merger is None else self.merger.drift_belief.report(),
             step_seconds=self.step_seconds,
+            solver_fallbacks=fallback_counts(self.solver.fallbacks),
         )

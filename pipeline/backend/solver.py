@@ -1,19 +1,32 @@
 """A thin iSAM2 wrapper: batched factor additions and removals, handles for factors, and the
 estimates and marginals the association step asks for.
 
-A valid graph can still defeat Cholesky: GTSAM refuses a frontal block whose conditioning is
-too poor ("Indeterminate linear system"), which stiff odometry (variances of 1e-6 on the
-degrees of freedom a planar robot does not move in) beside loose landmarks, or a bad step at a
-large loop closure, can produce. Then the whole graph is solved in batch (Levenberg-Marquardt)
-and iSAM2 starts again from that solution; if Cholesky refuses that too, with QR factorisation,
+GTSAM 4.3's Cholesky refuses ("Indeterminate linear system") to eliminate a variable whose
+pivot, the information left once the variables eliminated before it are integrated out, is
+below 2^-24 of its diagonal: half a double's digits lost (tests/test_planar.py shows it on a
+2x2 system). A graph is refused, then, when one of its factors is some 4,000 times more precise
+(in sigma) than what the rest leaves of the variable it pins, in the order iSAM2 eliminates.
+What did that on valid logs, and what the back-end does instead:
+- a detection measured through a projection: a loop closure's first step put a tag behind the
+  sensor, its Jacobian vanished and Gauss-Newton diverged (now a Cartesian residual, full rank
+  everywhere: `factors.point_measurement_factor`);
+- a planar log's height, roll and pitch, left to the odometry's 1 mm / 1 mrad a step: a random
+  walk, metres after a thousand keyframes (now the plane is stated: `planar.py`);
+- covariances past what the factorisation keeps (a variance of 1e-14 beside 1e-4, a condition
+  number of 1e12), a kilometres-long step (now refused by the reader: `pipeline/log/limits`).
+Should a graph still be refused, the whole graph is solved in batch (Levenberg-Marquardt) and
+iSAM2 starts again from that solution; if Cholesky refuses that too, with QR factorisation,
 which does without that test, and Dogleg steps, kept from there on. Marginals refused the same
-way do the same.
+way do the same. Each fallback is recorded (`fallbacks`, metrics.json's `solver_fallbacks`):
+a valid log that needs one is a bug to report.
 """
 
 from __future__ import annotations
 
 import logging
+from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
@@ -34,6 +47,47 @@ def gtsam_reason(message: str) -> str:
             break
         head.append(line)
     return " ".join(head) or "unknown error"
+
+
+FALLBACK_KINDS = ("batch", "qr")
+
+
+@dataclass(frozen=True)
+class SolverFallback:
+    """A graph Cholesky refused, and what the solver did: "batch" (solved again in batch, iSAM2
+    started again there) or "qr" (QR factorisation from then on). Each is a bug to find: a
+    valid log is solved without any."""
+
+    update: int  # the iSAM2 update it happened at
+    kind: str
+    reason: str  # GTSAM's explanation, one line
+
+
+def fallback_counts(fallbacks: list[SolverFallback]) -> dict[str, int]:
+    """How many fallbacks of each kind (every kind listed, zeros included)."""
+    counts = Counter(f.kind for f in fallbacks)
+    return {kind: counts[kind] for kind in FALLBACK_KINDS}
+
+
+def landmarks_last(graph: gtsam.NonlinearFactorGraph) -> gtsam.KeyGroupMap:
+    """iSAM2's ordering of an update: the variables of its new factors last (GTSAM's default:
+    they stay at the root, where the next update finds them), and among them the landmarks
+    after the poses.
+
+    The variable eliminated last keeps its marginal as its pivot. A pose's marginal grows with
+    the drive (14 m across on a KITTI 05 run at noise x3) while its odometry pins it to
+    millimetres: as the last, its pivot lost more than the 24 bits Cholesky allows, and a merge
+    re-pointing a landmark's detections from fifteen poses was refused. A landmark's marginal is
+    as wide, but its own measurements are centimetres, not millimetres, and the poses before it
+    are then eliminated given it: their pivots are their information relative to it."""
+    keys = graph.keyVector()
+    # CCOLAMD takes groups 0 .. n - 1 for n variables (those the update re-eliminates, at
+    # least these): with two, the pose goes with the variables not constrained.
+    first = 1 if len(keys) >= 3 else 0
+    groups = gtsam.KeyGroupMap()
+    for key in keys:
+        groups.insert2(key, first if gtsam.Symbol(key).chr() == ord("x") else first + 1)
+    return groups
 
 
 def relinearization_thresholds(
@@ -82,6 +136,7 @@ class Isam2Solver:
         self._slots: dict[int, int] = {}
         self._next_handle = 0
         self.num_updates = 0
+        self.fallbacks: list[SolverFallback] = []  # in order
 
     def _params(self, factorization: str) -> gtsam.ISAM2Params:
         c = self.config
@@ -145,7 +200,10 @@ class Isam2Solver:
         graph = gtsam.NonlinearFactorGraph()
         for factor in self._pending.values():
             graph.add(factor)
-        result = self.isam.update(graph, self._values, self._removals)
+        params = gtsam.ISAM2UpdateParams()
+        params.removeFactorIndices = self._removals
+        params.constrainedKeys = landmarks_last(graph)
+        result = self.isam.update(graph, self._values, params)
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot
         return result
@@ -157,11 +215,13 @@ class Isam2Solver:
         self._removals = []
 
     def _check_refusal(self, exc: RuntimeError, what: str) -> None:
-        """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried."""
+        """Raise `SolverError` unless `exc` is Cholesky's conditioning test and QR is untried;
+        else the batch solve that follows is recorded."""
         reason = gtsam_reason(str(exc))
         if self.factorization == "QR" or "Indeterminate" not in reason:
             raise SolverError(f"{what} failed: {reason}") from exc
         logger.warning("%s: %s; solving the graph again in batch", what, reason)
+        self.fallbacks.append(SolverFallback(self.num_updates, "batch", f"{what}: {reason}"))
 
     def _solve_again(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         """Everything (`_graph`) solved in batch by Levenberg-Marquardt from `theta`, then a
@@ -187,10 +247,13 @@ class Isam2Solver:
 
     def _rebuild_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         try:
-            return self._rebuild("QR", theta)
+            result = self._rebuild("QR", theta)
         except RuntimeError as exc:
             reason = gtsam_reason(str(exc))
             raise SolverError(f"iSAM2 update {self.num_updates} failed: {reason}") from exc
+        reason = "Cholesky refused the graph after a batch solve"
+        self.fallbacks.append(SolverFallback(self.num_updates, "qr", reason))
+        return result
 
     def _graph(self, theta: gtsam.Values) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
         """Every factor in the graph (committed, then pending; removals left out) and the

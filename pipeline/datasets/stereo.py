@@ -119,9 +119,21 @@ class StereoSequence:
     times: np.ndarray
     gt_poses: np.ndarray | None
     colour: bool  # the images are stored in colour
+    # The frames' stamps (ns) as the layout gives them, where it gives integers (EuRoC, ROS
+    # bags): seconds in a float lose nanoseconds past about 100 days since the epoch.
+    exact_stamps_ns: list[int] | None = None
+    # Frames left out for want of a partner of the other camera (layouts paired by stamps).
+    unmatched_left: int = 0
+    unmatched_right: int = 0
 
     def __len__(self) -> int:
         return len(self.left_files)
+
+    def stamps_ns(self) -> list[int]:
+        """Each frame's stamp (ns): the exact ones, else `times` rounded to nanoseconds."""
+        if self.exact_stamps_ns is not None:
+            return list(self.exact_stamps_ns)
+        return [round(float(t) * 1e9) for t in self.times]
 
     def __getitem__(self, index: int) -> tuple[np.ndarray, np.ndarray]:
         """The rectified (left, right) grey images of a frame."""

@@ -170,7 +170,7 @@ class FoxgloveSink:
 
         for stamp, text, warning in self.events:
             out.append((stamp, EVENTS, fm.event(stamp, text, warning)))
-        if metrics is not None:
+        if metrics is not None and "translation_error_m" in metrics:
             t, a = metrics["translation_error_m"], metrics["association"]
             summary = (
                 f"{self.method}: translation error rmse {t['rmse']:.3f} m, max {t['max']:.3f} m; "

@@ -17,6 +17,13 @@ IMAGE_FORMATS = ("jpeg", "png")
 
 
 @dataclass(frozen=True)
+class InputConfig:
+    """`[input]`: reading sequences whose left and right frames are paired by their stamps."""
+
+    stereo_stamp_tolerance: float = setting(POSITIVE)
+
+
+@dataclass(frozen=True)
 class ClassConfig:
     num_classes: int = setting(at_least(1))
     tag_confusion_diagonal: float = setting(FRACTION)
@@ -62,6 +69,7 @@ class VoConfig:
     recovery_features: int = setting(at_least(10))
     recovery_ratio: float = setting(FRACTION)
     pixel_sigma: float = setting(POSITIVE)
+    min_residual_scale: float = setting(FRACTION)
     min_sigma_rotation: float = setting(POSITIVE)
     min_sigma_translation: float = setting(POSITIVE)
     translation_sigma_fraction: float = setting(at_least(0.0))
@@ -134,6 +142,7 @@ class ObjectDetectorConfig:
 
 @dataclass(frozen=True)
 class FrontendConfig:
+    input: InputConfig
     classes: ClassConfig
     apriltags: AprilTagConfig
     vo: VoConfig

@@ -19,8 +19,9 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
-from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
-from pipeline.datasets.plain import CALIBRATION_FILE, PlainSequence
+from pipeline.datasets.kitti import camera_poses_to_body
+from pipeline.datasets.layouts import SequenceOptions, open_sequence
+from pipeline.datasets.stereo import StereoSequence
 from pipeline.errors import InputError
 from pipeline.frontend.apriltags import AprilTagDetector, tag_detection
 from pipeline.frontend.config import FrontendConfig, OutputConfig, load_frontend_config
@@ -52,7 +53,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-Sequence = KittiSequence | PlainSequence
+Sequence = StereoSequence
 T = TypeVar("T")
 
 
@@ -66,13 +67,19 @@ class FrontendSummary:
     num_box_detections: int
     vo_lost: int  # keyframes whose motion is a constant-velocity guess
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    unpaired_frames: int = 0  # left or right frames without a partner, left out
 
     def summary_line(self) -> str:
         stages = ", ".join(f"{name} {s:.1f} s" for name, s in self.stage_seconds.items())
+        unpaired = (
+            f", {self.unpaired_frames} frames without a stereo partner left out"
+            if self.unpaired_frames
+            else ""
+        )
         return (
             f"{self.out}: {self.num_poses} poses from {self.num_frames} frames, "
             f"{self.num_tag_detections} tag and {self.num_box_detections} box detections, "
-            f"{self.vo_lost} odometry losses ({stages})"
+            f"{self.vo_lost} odometry losses{unpaired} ({stages})"
         )
 
 
@@ -84,30 +91,18 @@ class ObjectStage(Protocol):
     def detect(self, left: np.ndarray, right: np.ndarray, intrinsics: Any) -> list[Any]: ...
 
 
-def open_sequence(path: str | Path, prefer_colour: bool = False) -> Sequence:
-    """The KITTI layout if `image_0/` or `image_2/` is there, else the plain layout
-    (`calibration.toml`). `prefer_colour`: KITTI's colour pair where it has both."""
-    root = Path(path)
-    if not root.is_dir():
-        raise InputError(f"sequence {root}: no such directory")
-    if (root / "image_0").is_dir() or (root / "image_2").is_dir():
-        return KittiSequence(root, prefer_colour)
-    if (root / CALIBRATION_FILE).exists():
-        return PlainSequence(root)
-    raise InputError(
-        f"sequence {root}: neither the KITTI layout (image_0/, image_1/, calib.txt, times.txt) "
-        f"nor the plain one ({CALIBRATION_FILE}, left/, right/)"
-    )
-
-
 def _progress(items: Iterable[T], enabled: bool, description: str, total: int) -> Iterator[T]:
     return track(items, total, description, "frame", enabled=enabled)
 
 
-def stamps_ns(times: np.ndarray) -> list[int]:
-    stamps = [round(float(t) * 1e9) for t in times]
+def stamps_ns(sequence: Sequence) -> list[int]:
+    """The frames' stamps (ns), refused if negative (a log's stamps are not)."""
+    stamps = sequence.stamps_ns()
     if stamps[0] < 0:
-        raise InputError(f"sequence times start at {times[0]} s: stamps must not be negative")
+        raise InputError(
+            f"sequence {sequence.root}: times start at {sequence.times[0]} s: stamps must not "
+            "be negative"
+        )
     return stamps
 
 
@@ -314,7 +309,7 @@ def write_log(
 ) -> None:
     """The log: calibration and ground-truth landmarks first, then pose by pose its odometry,
     detections, ground-truth pose and (if `images` says how) images."""
-    stamps = stamps_ns(sequence.times)
+    stamps = stamps_ns(sequence)
     with LogWriter(out, metadata) as writer:
         writer.write(sequence.intrinsics.calibration_message(stamps[0]))
         if truth is not None:
@@ -362,8 +357,13 @@ def run_frontend(
     images: bool = False,
     progress: bool = True,
     sink: FrontendSink | None = None,
+    left_topic: str | None = None,
+    right_topic: str | None = None,
+    calibration: Path | None = None,
 ) -> FrontendSummary:
-    """Turn a stereo sequence (KITTI or plain layout) into a contract-v1 log at `out`.
+    """Turn a stereo sequence (KITTI, EuRoC or plain layout, or a ROS bag) into a contract-v1
+    log at `out`. A bag's stereo topics are `left_topic` and `right_topic` (found when None),
+    its calibration `calibration` (a plain-layout calibration.toml; default: its CameraInfo).
 
     `images` (or `[output] images` in the config) also writes the keyframes' images;
     `progress` shows a progress bar per stage when stderr is a terminal; `sink` (a Rerun sink,
@@ -373,12 +373,15 @@ def run_frontend(
 
     cv2.setNumThreads(1)  # one core a run: runs are parallelised by the caller
     config = load_frontend_config(config_path)
-    sequence = open_sequence(sequence_dir, prefer_colour=config.objects.enabled)
+    options = SequenceOptions(
+        config.input.stereo_stamp_tolerance, left_topic, right_topic, calibration
+    )
+    sequence = open_sequence(sequence_dir, config.objects.enabled, options)
     if len(sequence) < 2:
         raise InputError(f"sequence {sequence_dir}: needs at least two frames")
-    stamps_ns(sequence.times)  # refuse bad times before the work
+    stamps_ns(sequence)  # refuse bad times before the work
     landmarks_path = Path(sequence_dir) / LANDMARKS_FILE
-    truth = read_landmarks(landmarks_path) if landmarks_path.exists() else None
+    truth = read_landmarks(landmarks_path) if landmarks_path.is_file() else None
     body_poses = None if sequence.gt_poses is None else camera_poses_to_body(sequence.gt_poses)
     object_stage = make_object_stage(config)
     seconds: dict[str, float] = {}
@@ -421,7 +424,7 @@ def run_frontend(
 
         with _timed(seconds, "viz"):
             found = [t + b for t, b in zip(tags, boxes, strict=True)]
-            stamps = stamps_ns(sequence.times)
+            stamps = stamps_ns(sequence)
             show_keyframes(sink, sequence, keyframes, stamps, outlines or [], found, metadata)
     with _timed(seconds, "write"):
         write_log(
@@ -445,6 +448,7 @@ def run_frontend(
         num_box_detections=sum(len(d) for d in boxes),
         vo_lost=keyframes.lost,
         stage_seconds=seconds,
+        unpaired_frames=sequence.unmatched_left + sequence.unmatched_right,
     )
     log.info("%s", summary.summary_line())
     return summary

@@ -13,7 +13,7 @@ any length.
 from __future__ import annotations
 
 import logging
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from typing import Any
 
@@ -71,6 +71,7 @@ class LogValidator:
             schemas.GT_POSE: deque(),
         }
         self._highest: dict[str, int] = {}
+        self._detections_of: Counter[int] = Counter()  # detections per pose so far
 
     @property
     def num_poses(self) -> int:
@@ -159,6 +160,8 @@ class LogValidator:
                 while pending and pending[0][0] <= self.odometry_count:
                     pending.popleft()
         elif topic in self._unreached:
+            if topic == schemas.DETECTIONS:
+                self._count_detections(msg, topic, index)
             if topic == schemas.GT_POSE and not self._gt_poses.add(msg.pose_index):
                 raise self.error(f"pose {msg.pose_index} given twice", topic, index)
             if msg.pose_index > max(self._highest.get(topic, 0), self.odometry_count):
@@ -171,6 +174,18 @@ class LogValidator:
                 raise self.error("landmark ids are not unique", topic, index)
         elif topic == schemas.CALIBRATION:
             self._once(topic, index, "calibration message")
+
+    def _count_detections(self, msg: Any, topic: str, index: int) -> None:
+        count = self._detections_of[msg.pose_index] + len(msg.detections)
+        if count > limits.MAX_DETECTIONS_PER_POSE:
+            raise self.error(
+                f"pose {msg.pose_index} holds {count} detections, more than the "
+                f"{limits.MAX_DETECTIONS_PER_POSE} a keyframe may",
+                topic,
+                index,
+            )
+        if msg.detections:
+            self._detections_of[msg.pose_index] = count
 
     def _once(self, topic: str, index: int, what: str) -> None:
         if topic in self._seen_once:

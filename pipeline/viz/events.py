@@ -33,6 +33,12 @@ def started(method: str, num_poses: int, num_detections: int) -> Event:
     )
 
 
+def solver_fallback(at: int, kind: str, reason: str) -> Event:
+    """The solver fell back at keyframe `at` (`pipeline/backend/solver.py`): a bug to report."""
+    what = "solved the graph again in batch" if kind == "batch" else "went to QR"
+    return Event(WARN, f"pose {at}: the solver {what} ({reason})")
+
+
 def _detection(pose_index: int, detection_index: int, at: int) -> str:
     """A detection as seen from keyframe `at`: its own, or one of an earlier pose."""
     if pose_index == at:

@@ -456,6 +456,8 @@ class RerunSink:
         i = report.pose_index
         stamp = self._stamp(i)
         self._set_time(i, stamp)
+        for fallback in report.solver_fallbacks:
+            self._event(events.solver_fallback(i, fallback.kind, fallback.reason))
         merged_from = {}  # duplicate -> where it was last drawn
         for duplicate, _ in report.merged:  # drawn now as the landmark it was merged into
             self.rec.log(e.landmark_path(duplicate), rr.Clear(recursive=True))

@@ -38,7 +38,7 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
         "|---|---|---|---|",
         f"| {state.detections} | {state.landmarks} | {state.switches} | {state.nulls} |",
     ]
-    if not metrics:
+    if not metrics or "translation_error_m" not in metrics:
         if state.error_m is not None:
             lines += ["", f"Newest pose: {state.error_m:.2f} m from ground truth."]
         return "\n".join(lines)

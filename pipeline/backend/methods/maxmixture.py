@@ -210,7 +210,7 @@ class MaxMixture(MixtureMethod):
         """The mixture as one CustomFactor choosing at every linearisation (no `refine`)."""
         m = record.measurement
         components = [
-            component(m.factor(X(m.pose_index), L(j)), float(w))
+            component(m.factor(X(m.pose_index), L(j)), float(w), m.log_normaliser)
             for j, w in zip(record.landmark_ids, record.weights, strict=True)
         ]
         mixture = MaxMixtureFactor(X(m.pose_index), components, m.dim, self.null_nll(m))

@@ -15,7 +15,7 @@ HAVE := $(call minor,$(BIN)/python)
 # Python is rebuilt. Otherwise any working .venv of a supported Python is kept.
 ASKED := $(filter command line environment,$(origin PYTHON))
 
-.PHONY: demo test test-fast bench lint clean models shell
+.PHONY: demo test test-fast bench lint clean models shell docs
 
 $(STAMP): pyproject.toml
 	@if [ -d $(VENV) ] && { [ -z "$(filter $(PYTHONS),$(HAVE))" ] || \
@@ -58,6 +58,12 @@ shell: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python -m data_tools.bench
+
+# The README's and docs' Rerun pictures from the current code (docs/rerun/, with the commit
+# they were made at). Needs a virtual display and a software Vulkan driver: on Debian,
+# apt-get install xvfb mesa-vulkan-drivers libgl1-mesa-dri libegl1 libvulkan1. A few minutes.
+docs: $(STAMP)
+	$(BIN)/python -m data_tools.rerun_docs
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix .

@@ -24,6 +24,7 @@ EXAMPLES = """examples:
   mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1 --odom-noise-scale 2
   mmslam inspect out/kitti05.mcap
   mmslam replay out/kitti05.mcap --method mm-nh --out out/kitti05-mmnh --rrd out/run.rrd
+  mmslam compare out/kitti05.mcap --methods known,ml,mm-nh --out out/kitti05-runs --rrd out/cmp.rrd
   mmslam export out/kitti05.mcap --ground-truth out/kitti05-gt.tum
   mmslam plot out/kitti05.mcap out/kitti05-mmnh --out out/kitti05.png
   mmslam frontend out/seq --out out/seq.mcap
@@ -46,6 +47,15 @@ COMMAND_EXAMPLES = {
   mmslam replay out/tags.mcap --method ml --out out/tags-ml --rrd out/tags-ml.rrd
   mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh --mcap out/tags-mm-nh.mcap
   mmslam replay out/tags.mcap --method gpda --out out/tags-gpda --config strict.toml
+""",
+    "compare": """examples:
+  mmslam compare out/tags.mcap --methods known,ml,mm-nh --out out/tags-runs --rrd out/tags.rrd
+  mmslam compare out/tags.mcap --methods ml,mm-nh --out out/tags-runs --spawn --workers 2
+
+Each method's outputs go to DIR/METHOD/, as `mmslam replay --out DIR/METHOD` writes them. The
+recording shows every run on the same timeline: the maps side by side, a line per method in
+each plot, a table of the results. It is put together once every run has finished (with
+--spawn or --connect, the viewer gets it then).
 """,
     "inspect": """examples:
   mmslam inspect out/tags.mcap
@@ -274,6 +284,41 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def method_list(text: str) -> list[str]:
+    """An argparse type: `known,ml,mm-nh`, each a method, none twice."""
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if not methods or unknown:
+        raise argparse.ArgumentTypeError(
+            f"expected methods from {', '.join(METHODS)}, comma-separated; got {text!r}"
+        )
+    if len(set(methods)) != len(methods):
+        raise argparse.ArgumentTypeError(f"a method is named twice in {text!r}")
+    return methods
+
+
+def _cmd_compare(args: argparse.Namespace) -> int:
+    from pipeline.compare import compare
+
+    results = compare(
+        args.log,
+        args.methods,
+        args.out,
+        args.config,
+        rrd=args.rrd,
+        spawn=args.spawn,
+        connect=args.connect,
+        workers=args.workers,
+        progress=not args.quiet,
+        command=_command_line(args),
+    )
+    for result in results:
+        print(result.summary_line())
+    if args.rrd is not None:
+        print(f"wrote {args.rrd}")
+    return 0
+
+
 def _cmd_export(args: argparse.Namespace) -> int:
     from pipeline.export import export_ground_truth
 
@@ -436,6 +481,29 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write the estimate as Foxglove messages to FILE (an MCAP file)",
     )  # fmt: skip
     _add_viz_options(replay)
+
+    compare = _subcommand(
+        commands,
+        "compare",
+        "several methods over one log: each run's outputs, one recording of them all",
+        _cmd_compare,
+    )
+    compare.add_argument("log", type=Path, metavar="LOG.mcap")
+    compare.add_argument(
+        "--methods", type=method_list, default=["known", "ml", "mm-nh"], metavar="M1,M2,...",
+        help=f"comma-separated, from {', '.join(METHODS)} (default: known,ml,mm-nh)",
+    )  # fmt: skip
+    compare.add_argument(
+        "--out", required=True, type=Path, metavar="DIR", help="DIR/METHOD/ for each method"
+    )
+    compare.add_argument(
+        "--config", type=Path, metavar="FILE", help="TOML over configs/default.toml"
+    )
+    compare.add_argument(
+        "--workers", type=number_in(int, 1), default=1, metavar="N",
+        help="runs at a time, each in its own process (default 1: one after another)",
+    )  # fmt: skip
+    _add_viz_options(compare)
 
     export = _subcommand(
         commands, "export", "a log's ground truth for other tools (evo, a spreadsheet)", _cmd_export

@@ -7,6 +7,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pyarrow as pa
 import rerun.chunk as rerun_chunk
 
 # What each kind of view draws: a view shows an entity that carries one of these.
@@ -57,11 +58,41 @@ def latest(rows: list[dict], component: str):
     return value
 
 
+def plain(values: pa.Array) -> list:
+    """An Arrow column of blueprint values as Python, unions named: a time range's boundary
+    reads ("CursorRelative", -100), ("Absolute", 0) or ("Infinite", None) (`to_pylist` drops
+    the kind, and pyarrow's union scalars misreport it for a variant without a value)."""
+    kind = values.type
+    valid = [v.is_valid for v in values]
+    if pa.types.is_union(kind):
+        children = [plain(values.field(i)) for i in range(kind.num_fields)]
+        codes = values.type_codes.to_pylist()
+        offsets = values.offsets.to_pylist()
+        out = []
+        for code, offset in zip(codes, offsets, strict=True):
+            i = kind.type_codes.index(code)
+            value = children[i][offset] if not pa.types.is_null(kind.field(i).type) else None
+            out.append((kind.field(i).name, value))
+        return out
+    if pa.types.is_struct(kind):
+        fields = {f.name: plain(values.field(f.name)) for f in kind}
+        return [
+            {name: column[k] for name, column in fields.items()} if ok else None
+            for k, ok in enumerate(valid)
+        ]
+    if pa.types.is_list(kind) or pa.types.is_large_list(kind):
+        flat = plain(values.values)
+        offsets = values.offsets.to_pylist()
+        return [flat[offsets[k] : offsets[k + 1]] if ok else None for k, ok in enumerate(valid)]
+    return values.to_pylist()
+
+
 @dataclass
 class View:
     kind: str  # Rerun's class identifier: "3D", "2D", "TimeSeries", ...
     origin: str
     name: str
+    id: str = ""
     query: list[str] = field(default_factory=list)
     # Properties by archetype ("EyeControls3D", "TextLogColumns", ...; overrides by their
     # path under the view, "ViewContents/overrides/world/uncertainty/visualizers"): a row of
@@ -96,13 +127,15 @@ def blueprint(path: Path) -> list[View]:
         parts = chunk.entity_path.strip("/").split("/")
         if parts[0] != "view":
             continue
-        row = {k: v[0] for k, v in chunk.to_record_batch().to_pydict().items()}
+        batch = chunk.to_record_batch()
+        row = {name: plain(batch.column(name))[0] for name in batch.schema.names}
         view_id = parts[1]
         if len(parts) == 2:
             views[view_id] = View(
                 kind=row["ViewBlueprint:class_identifier"][0],
                 origin=row["ViewBlueprint:space_origin"][0],
                 name=row["ViewBlueprint:display_name"][0],
+                id=view_id,
             )
         elif parts[2:] == ["ViewContents"]:
             queries[view_id] = list(row["ViewContents:query"])
@@ -112,6 +145,38 @@ def blueprint(path: Path) -> list[View]:
         view.query = queries.get(view_id, ["$origin/**"])
         view.properties = properties[view_id]
     return list(views.values())
+
+
+def eye_coordinates(view: View, points) -> tuple:
+    """Where `points` (N, 3) fall in a 3-D view's default eye: (across, up) over depth, to
+    compare with tan(fov / 2) (times the aspect across), and the depth."""
+    import numpy as np
+
+    eye = view.properties["EyeControls3D"]
+    position = np.array(eye["EyeControls3D:position"][0])
+    target = np.array(eye["EyeControls3D:look_target"][0])
+    up_hint = np.array(eye["EyeControls3D:eye_up"][0])
+    forward = (target - position) / np.linalg.norm(target - position)
+    right = np.cross(forward, up_hint)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    v = np.asarray(points, dtype=float) - position
+    depth = v @ forward
+    return v @ right / depth, v @ up / depth, depth
+
+
+def containers(path: Path) -> list[list[str]]:
+    """Each container of the blueprint: the ids of what it holds, in its order."""
+    reader = rerun_chunk.RrdReader(path)
+    (store,) = reader.blueprints()
+    out = []
+    for chunk in reader.stream(store=store):
+        if chunk.entity_path.startswith("/container/"):
+            batch = chunk.to_record_batch()
+            if "ContainerBlueprint:contents" in batch.schema.names:
+                contents = batch.column("ContainerBlueprint:contents").to_pylist()[0]
+                out.append([c.split("/", 1)[1] for c in contents])
+    return out
 
 
 def blueprint_views(path: Path) -> list[tuple[str, str]]:

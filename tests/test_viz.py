@@ -5,6 +5,7 @@ the blueprint; bad options; and that a replay without Rerun options never import
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import os
 import signal
 import socket
@@ -37,10 +38,11 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.replay import ReplayResult, replay
-from pipeline.viz import draw, rerun_sink
+from pipeline.viz import draw, marks, stream
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
-from pipeline.viz.rerun_sink import RerunSink, viewer_url
+from pipeline.viz.rerun_sink import RerunSink
+from pipeline.viz.stream import rerun_executable, viewer_url
 from tests.recordings import (
     blueprint_views,
     data_rows,
@@ -68,6 +70,12 @@ class Snapshot(RerunSink):
         self.expected = getattr(self, "expected", {})
         self.step_ms = getattr(self, "step_ms", [])
         self.switched = getattr(self, "switched", {})
+        self.merged = getattr(self, "merged", {})
+        if report.merged:  # (duplicate, survivor, whether the duplicate was drawn before)
+            self.merged[report.pose_index] = [
+                (d, backend.landmarks.resolve(s), d < self._landmark_total)
+                for d, s in report.merged
+            ]
         self.step_ms.append(1e3 * report.seconds)
         self.switched[report.pose_index] = list(report.switched)
         self.expected[report.pose_index] = [
@@ -206,13 +214,28 @@ def test_only_the_landmarks_a_keyframe_weighs_are_labelled(square_run):
     hypotheses = {r["pose"]: r for r in data_rows(rows[e.HYPOTHESES], "landmark")}
     candidates = {r["pose"]: r for r in data_rows(rows[e.CANDIDATES], "Points3D:labels")}
     assert set(candidates) == set(hypotheses)
+    width, height = square_run.sink._label_box
+    left_out = 0
     for pose, row in hypotheses.items():
         weighed = sorted({j for j in row["landmark"] if j != NULL})
         labels = candidates[pose]["Points3D:labels"]
-        assert [int(label.split()[0][1:]) for label in labels] == weighed  # "L57 class 0.90"
+        assert len(labels) == len(weighed)
+        for label, j in zip(labels, weighed, strict=True):  # "L57 class 0.90", or left out
+            assert label == "" or int(label.split()[0][1:]) == j
         assert candidates[pose]["Points3D:show_labels"] == [True]
         assert len(candidates[pose]["Ellipsoids3D:half_sizes"]) <= len(weighed)
+        # the labels shown cover none of each other at the default eye
+        positions = candidates[pose]["Points3D:positions"]
+        shown = [p for p, label in zip(positions, labels, strict=True) if label]
+        assert shown or not weighed
+        for a, b in itertools.combinations(shown, 2):
+            assert abs(a[0] - b[0]) >= width or abs(a[1] - b[1]) >= height
+        left_out += len(labels) - len(shown)
+        # only the winners' lines carry their weight
+        lines = row["LineStrips3D:labels"]
+        assert all(label == "" for label, won in zip(lines, row["winner"], strict=True) if not won)
     assert row["Points3D:show_labels"] == [False]  # measured points: no class name each
+    assert left_out > 0  # the square's landmarks are close enough, seen whole, to crowd
 
 
 @pytest.mark.e2e
@@ -283,10 +306,10 @@ def test_the_recording_opens_with_its_layout(square_run):
     views = blueprint_views(rrd)
     kinds = [kind for kind, _ in views]
     assert ("3D", e.WORLD) in views
-    assert kinds.count("TimeSeries") == 4  # error, counts, null rate, time
+    # error, wrong associations, landmarks, switches and merges, null rate, time
+    assert kinds.count("TimeSeries") == 6
     assert "TextLog" in kinds
-    assert ("2D", e.CAMERA) not in views  # the log has no images
-    assert ("2D", e.LEGEND) in views
+    assert "2D" not in kinds  # the log has no images; the legend is in the map
     rows = read_rows(rrd)
     assert rows[e.WORLD][0]["ViewCoordinates:xyz"] is not None
     assert data_rows(rows[e.GROUND_TRUTH_TRAJECTORY], "LineStrips3D:strips")
@@ -342,6 +365,11 @@ def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
     assert all(level == "INFO" for _, level, _ in events)
     rejected = latest(rows[e.REJECTED], "Points3D:labels")
     assert rejected == [alias]
+    # and kept where it happened, never cleared: the map shows it from then on
+    (history,) = data_rows(rows[e.NULL_DECISIONS], "Points3D:positions")
+    assert history["pose"] == pose and history["Points3D:labels"] == [alias]
+    assert latest(rows[e.NULL_DECISIONS], "Points3D:labels") == [alias]
+    assert history["Points3D:colors"] == [int(draw.packed_rgba(draw.NULL_WINNER_RGB))]
     # the per-keyframe marks are cleared on the next keyframe
     assert latest(rows[e.NULL_WINS], "Points3D:positions") is None
     rate = data_rows(rows[e.NULL_RATE], "Scalars:scalars")[-1]["Scalars:scalars"][0]
@@ -350,6 +378,70 @@ def test_null_hypothesis_win_and_switch_are_marked(tmp_path):
     (row,) = [r for r in data_rows(rows[e.HYPOTHESES], "detection") if r["pose"] == KIDNAP_POSE]
     mine = [n for n, d in enumerate(row["detection"]) if d == 0]
     assert NULL in [row["landmark"][n] for n in mine] and len(mine) >= 2
+
+
+@pytest.mark.e2e
+def test_wrong_associations_are_red_and_counted(tmp_path):
+    """Maximum likelihood takes the kidnap's alias for the lookalike: that detection's line is
+    red at its keyframe, a red line at the end, and the count the metrics give."""
+    scene, lookalike, _ = kidnap_scene(alias_seen_before=False)
+    log_path = write_scene(tmp_path / "kidnap.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    sink = Snapshot.open("test", rrd=tmp_path / "ml.rrd")
+    paper = load_config(settings.config_path("paper.toml"))
+    result = replay(log_path, "ml", tmp_path / "out", paper, sink=sink, progress=False)
+    assert result.metrics["association"]["wrong"] == 1
+    rows = read_rows(tmp_path / "ml.rrd")
+    red = int(draw.packed_rgba(draw.WRONG_RGB))
+    # at the kidnap, the alias (detection 0) went to the lookalike: its winning line red
+    lines = {
+        r["pose"]: list(zip(r["landmark"], r["winner"], r["LineStrips3D:colors"], strict=True))
+        for r in data_rows(rows[e.HYPOTHESES], "landmark")
+    }
+    reds = [(pose, j) for pose, ls in lines.items() for j, won, c in ls if c == red]
+    assert reds == [(KIDNAP_POSE, lookalike)]
+    assert all(won for ls in lines.values() for _, won, c in ls if c == red)
+    # at the end, one red line from the kidnapped pose to the lookalike, and the count
+    assert latest(rows[e.WRONG], "LineStrips3D:labels") == [f"p{KIDNAP_POSE} d0 → L{lookalike}"]
+    (strip,) = latest(rows[e.WRONG], "LineStrips3D:strips")
+    final = sink.final
+    np.testing.assert_allclose(strip[0], final.poses[KIDNAP_POSE].translation(), atol=1e-6)
+    np.testing.assert_allclose(strip[1], final.landmark_values[lookalike], atol=1e-6)
+    assert latest(rows[e.WRONG], "LineStrips3D:colors") == [red]
+    (ring,) = latest(rows[e.WRONG], "Points3D:positions")  # round the landmark, just below
+    np.testing.assert_allclose(ring, np.subtract(strip[1], [0, 0, marks.RING_DEPTH_M]), atol=1e-6)
+    assert latest(rows[e.WRONG], "Points3D:colors") == [red]
+    counts = [
+        (r["pose"], r["Scalars:scalars"][0])
+        for r in data_rows(rows[e.WRONG_COUNT], "Scalars:scalars")
+    ]
+    assert [c for pose, c in counts if pose < KIDNAP_POSE] == [0.0] * KIDNAP_POSE
+    assert counts[-1] == (len(final.poses) - 1, 1.0)
+
+
+def test_merges_are_marked_where_they_happen(square_run):
+    rows = read_rows(square_run.rrd)
+    merged = square_run.sink.merged
+    assert square_run.final.merges == sum(len(m) for m in merged.values()) > 0
+    marks = {r["pose"]: r for r in data_rows(rows[e.MERGES], "LineStrips3D:strips")}
+    drawn = {pose: [f"L{d} → L{s}" for d, s, shown in m if shown] for pose, m in merged.items()}
+    assert {pose: r["LineStrips3D:labels"] for pose, r in marks.items()} == {
+        pose: labels for pose, labels in drawn.items() if labels
+    }
+    for pose, row in marks.items():  # each line ends at its survivor as it stood then
+        for strip, label in zip(
+            row["LineStrips3D:strips"], row["LineStrips3D:labels"], strict=True
+        ):
+            survivor = int(label.rsplit("L", 1)[1])
+            at = [
+                r
+                for r in data_rows(rows[e.landmark_path(survivor)], "Points3D:positions")
+                if r["pose"] <= pose
+            ][-1]
+            np.testing.assert_allclose(strip[1], at["Points3D:positions"][0], atol=0.1)
+    (colour,) = latest(rows[e.MERGES], "LineStrips3D:colors")
+    assert colour >> 8 == int(draw.packed_rgba(draw.MERGE_RGB)) >> 8  # half transparent
+    totals = data_rows(rows[e.MERGE_COUNT], "Scalars:scalars")
+    assert totals[-1]["Scalars:scalars"] == [square_run.final.merges]
 
 
 @pytest.mark.e2e
@@ -521,7 +613,7 @@ def test_connect_needs_a_viewer(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="no Rerun viewer listening"):
         RerunSink.open("test", connect=f"127.0.0.1:{port}")
     # one look, bounded: without a viewer the answer comes, whatever the machine's load
-    assert timeouts == [rerun_sink.VIEWER_WAIT_S] and 0 < rerun_sink.VIEWER_WAIT_S <= 10
+    assert timeouts == [stream.VIEWER_WAIT_S] and 0 < stream.VIEWER_WAIT_S <= 10
 
 
 @pytest.mark.parametrize(
@@ -751,3 +843,12 @@ def test_viz_config_defaults_and_overrides(tmp_path):
         override.write_text(text)
         with pytest.raises(InputError, match=message):
             load_viz_config(override)
+
+
+@pytest.mark.skipif(rerun_executable() is None, reason="no rerun executable")
+def test_rerun_verifies_a_run_recording(square_run):
+    done = subprocess.run(
+        [rerun_executable(), "rrd", "verify", str(square_run.rrd)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr

@@ -1,8 +1,10 @@
 """The layout a recording opens with, read back from its blueprint, against what the run
 recorded: every view draws something and names nothing that is not there, nothing recorded is
-outside every view; the map's default eye sees the whole run from above; the legend names the
-colours the map uses; the event log's columns; the uncertainty layer off by default. As far as
-the SDK shows it without a viewer (the picture itself: README, "Watching a run in Rerun")."""
+outside every view; the map's default eye sees the whole run from above, and its legend below
+it; the legend names the colours the map uses, and is in every map view (so a maximised map
+keeps it); plots show the whole run, or a window following the cursor; the decisions' history
+is shown up to the cursor; the event log's columns; the uncertainty layer off by default. As
+far as the SDK shows it without a viewer (the pictures: `make docs`)."""
 
 from __future__ import annotations
 
@@ -12,15 +14,22 @@ import numpy as np
 import pytest
 
 from pipeline.config import load_config
-from pipeline.log import read_log
+from pipeline.log import LogMetadata, read_log
 from pipeline.replay import replay
-from pipeline.viz import draw
+from pipeline.viz import draw, legend, plots
 from pipeline.viz import entities as e
-from pipeline.viz.blueprint import EYE_TILT, REPLAY_MAP_ASPECT
+from pipeline.viz.blueprint import (
+    EYE_TILT,
+    FRONTEND_MAP_ASPECT,
+    REPLAY_MAP_ASPECT,
+    frontend_blueprint,
+    replay_blueprint,
+)
 from pipeline.viz.rerun_sink import RerunSink
 from tests.recordings import (
     blueprint,
     data_rows,
+    eye_coordinates,
     latest,
     read_rows,
     unfed_views,
@@ -29,7 +38,16 @@ from tests.recordings import (
 from tests.synthetic import Scene, square_loop, write_scene
 from tests.test_viz import write_image_log
 
-PLOTS = {"Landmarks and switches", "Null-hypothesis rate", "Time per keyframe (ms)"}
+# the plots of every replay; the error plot where the log has a true trajectory, the wrong
+# associations where its detections name their true landmark
+PLOTS = {
+    "Landmarks",
+    "Total: switches magenta, merges ice blue",
+    "Null-hypothesis rate",
+    "Time per keyframe (ms): back-end grey, recording purple",
+}
+ERROR = "Translation error (m): newest pose amber, final estimate blue"
+WRONG = "Wrong associations (detections)"
 
 
 @pytest.fixture(scope="module")
@@ -64,15 +82,13 @@ def test_every_view_draws_what_the_run_recorded(runs):
 def test_the_views_follow_what_the_log_holds(runs):
     (_, truth), (_, images) = runs
     names = {v.name for v in blueprint(truth)}
-    assert names == {"Map", "Legend", "Association events", "Summary", "Translation error (m)"} | (
-        PLOTS
-    )
-    names = {v.name for v in blueprint(images)}
-    assert names == {"Map", "Legend", "Association events", "Summary", "Left camera"} | PLOTS
+    assert names == {"Map", "Association events", "Summary", ERROR, WRONG} | PLOTS
+    names = {v.name for v in blueprint(images)}  # truth ids on its detections, no trajectory
+    assert names == {"Map", "Association events", "Summary", "Left camera", WRONG} | PLOTS
 
 
 @pytest.mark.e2e
-def test_the_default_eye_sees_the_whole_run_from_above(runs):
+def test_the_default_eye_sees_the_whole_run_and_its_legend_from_above(runs):
     _, rrd = runs[0]
     (view,) = [v for v in blueprint(rrd) if v.name == "Map"]
     eye = view.properties["EyeControls3D"]
@@ -81,44 +97,62 @@ def test_the_default_eye_sees_the_whole_run_from_above(runs):
     assert eye["EyeControls3D:eye_up"][0] == [0.0, 0.0, 1.0]
     forward = (target - position) / np.linalg.norm(target - position)
     assert math.acos(-forward[2]) == pytest.approx(EYE_TILT, abs=1e-6)  # from straight down
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
     rows = read_rows(rrd)
-    points = np.vstack(
+    run = np.vstack(
         [
             latest(rows[e.GROUND_TRUTH_TRAJECTORY], "LineStrips3D:strips")[0],
             latest(rows[e.ODOMETRY_TRAJECTORY], "LineStrips3D:strips")[0],
         ]
     )
-    v = points - position
-    depth = v @ forward
+    board = np.vstack(
+        [
+            *latest(rows[e.LEGEND_LINES], "LineStrips3D:strips"),
+            latest(rows[e.LEGEND_MARKS], "Points3D:positions"),
+        ]
+    )
     half = math.tan(0.5 * draw.RERUN_FOV_Y)
-    assert np.all(depth > 0)
-    assert np.all(np.abs(v @ up) / depth <= half)
-    assert np.all(np.abs(v @ right) / depth <= half * REPLAY_MAP_ASPECT)
-    # and not from far away: the run fills at least half the view's height or width
-    extent = max(np.ptp(v @ up / depth) / (2 * half), np.ptp(v @ right / depth) / (2 * half))
-    assert extent > 0.5 / REPLAY_MAP_ASPECT
+    for points in (run, board):
+        across, up, depth = eye_coordinates(view, points)
+        assert np.all(depth > 0)
+        assert np.all(np.abs(up) <= half)
+        assert np.all(np.abs(across) <= half * REPLAY_MAP_ASPECT)
+    # the legend is below the run, and the run is not seen from far away: it fills at least
+    # half the view's height or width
+    across, up, _ = eye_coordinates(view, run)
+    assert np.max(eye_coordinates(view, board)[1]) < np.min(up)
+    assert max(np.ptp(up) / (2 * half), np.ptp(across) / (2 * half)) > 0.5 / REPLAY_MAP_ASPECT
+
+
+def swatch_colours(rows) -> dict[str, int]:
+    """The legend's swatches in the map: label -> colour."""
+    lines, marks = rows[e.LEGEND_LINES], rows[e.LEGEND_MARKS]
+    return dict(
+        zip(
+            latest(lines, "LineStrips3D:labels"),
+            latest(lines, "LineStrips3D:colors"),
+            strict=True,
+        )
+    ) | dict(zip(latest(marks, "Points3D:labels"), latest(marks, "Points3D:colors"), strict=True))
 
 
 @pytest.mark.e2e
 def test_the_legend_names_the_colours_of_the_map(runs):
     log, rrd = runs[0]
     rows = read_rows(rrd)
-    lines = latest(rows[e.LEGEND_LINES], "LineStrips2D:labels")
-    marks = latest(rows[e.LEGEND_MARKS], "Points2D:labels")
-    items = draw.replay_legend(log.metadata.class_names, ground_truth=True)
-    assert sorted(lines + marks) == sorted(item.label for item in items)
-    colour = dict(
-        zip(lines, latest(rows[e.LEGEND_LINES], "LineStrips2D:colors"), strict=True)
-    ) | dict(zip(marks, latest(rows[e.LEGEND_MARKS], "Points2D:colors"), strict=True))
+    colour = swatch_colours(rows)
+    items = legend.replay_legend(log.metadata.class_names, ground_truth=True, truth_labels=True)
+    assert sorted(colour) == sorted(item.label for item in items)
+    assert {"wrong association", "null hypothesis", "merge", "switch"} <= set(colour)
     for path, name in [
         (e.TRAJECTORY, "estimate"),
         (e.GROUND_TRUTH_TRAJECTORY, "ground truth"),
         (e.ODOMETRY_TRAJECTORY, "odometry alone"),
     ]:
         assert latest(rows[path], "LineStrips3D:colors") == [colour[name]]
+    # the marks the run made, each in its legend's colour
+    assert data_rows(rows[e.MERGES], "LineStrips3D:strips")  # this run merged duplicates
+    (merge,) = latest(rows[e.MERGES], "LineStrips3D:colors")
+    assert merge >> 8 == colour["merge"] >> 8  # the colour, half transparent
     # landmark classes: the annotation context's colours, and landmarks coloured by it alone
     (context,) = rows["/"][0]["AnnotationContext:context"]
     assert [entry["class_description"]["info"]["label"] for entry in context] == list(
@@ -130,18 +164,82 @@ def test_the_legend_names_the_colours_of_the_map(runs):
     landmark = rows[e.landmark_path(0)]
     assert latest(landmark, "Points3D:class_ids") is not None
     assert latest(landmark, "Points3D:colors") is None
-    # every swatch inside the legend's bounds
-    (view,) = [v for v in blueprint(rrd) if v.name == "Legend"]
-    bounds = view.properties["VisualBounds2D"]["VisualBounds2D:range"][0]
-    swatches = np.vstack(
+    # shown with their labels, and in the map's view: maximising the map keeps the legend
+    assert latest(rows[e.LEGEND_MARKS], "Points3D:show_labels") == [True]
+    (view,) = [v for v in blueprint(rrd) if v.kind == "3D"]
+    assert view.shows(e.LEGEND_MARKS) and view.shows(e.LEGEND_LINES)
+
+
+def test_the_front_end_keeps_its_legend_in_its_map_too(tmp_path):
+    metadata = LogMetadata(2, ((1.0, 0.0), (0.0, 1.0)), ("tag", "box"), "test")
+    sink = RerunSink.open("test", rrd=tmp_path / "frontend.rrd")
+    path = np.array([[0.0, 0.0, 0.0], [30.0, 0.0, 0.0], [30.0, 50.0, 0.0]])
+    sink.frontend_start(metadata, path)
+    sink.frontend_finish()
+    sink.close()
+    rows = read_rows(tmp_path / "frontend.rrd")
+    colour = swatch_colours(rows)
+    assert sorted(colour) == ["box", "tag", "visual odometry"]
+    (view,) = [v for v in blueprint(tmp_path / "frontend.rrd") if v.kind == "3D"]
+    assert view.shows(e.LEGEND_MARKS) and view.shows(e.LEGEND_LINES)
+    half = math.tan(0.5 * draw.RERUN_FOV_Y)
+    board = np.vstack(
         [
-            *latest(rows[e.LEGEND_LINES], "LineStrips2D:strips"),
-            latest(rows[e.LEGEND_MARKS], "Points2D:positions"),
+            *latest(rows[e.LEGEND_LINES], "LineStrips3D:strips"),
+            latest(rows[e.LEGEND_MARKS], "Points3D:positions"),
         ]
     )
-    for axis, key in enumerate(("x_range", "y_range")):
-        low, high = bounds[key]
-        assert np.all((swatches[:, axis] > low) & (swatches[:, axis] < high))
+    for points in (path, board):
+        across, up, _ = eye_coordinates(view, points)
+        assert np.all(np.abs(up) <= half) and np.all(np.abs(across) <= half * FRONTEND_MAP_ASPECT)
+
+
+def time_settings(views) -> dict[str, tuple]:
+    """Per plot: its time axis's range, and its time range on the pose timeline (or None)."""
+    out = {}
+    for view in views:
+        if view.kind != "TimeSeries":
+            continue
+        (axis,) = view.properties["TimeAxis"]["TimeAxis:view_range"]
+        ranges = view.properties.get("VisibleTimeRanges", {}).get("VisibleTimeRanges:ranges")
+        pose = None
+        if ranges:
+            (pose,) = [r["range"] for r in ranges if r["timeline"] == e.POSE_TIMELINE]
+        out[view.name] = ((axis["start"], axis["end"]), pose and (pose["start"], pose["end"]))
+    return out
+
+
+def test_plots_show_the_whole_run_or_a_window_that_follows_the_cursor(tmp_path):
+    plot_list = plots.replay_plots(True, True, 25)
+    for window in (0, 300):
+        made = replay_blueprint(images=False, extent=None, plots=plot_list, plot_window=window)
+        made.save("test", tmp_path / f"{window}.rbl")
+    whole = time_settings(blueprint(tmp_path / "0.rbl"))
+    assert sorted(whole) == sorted(p.name for p in plot_list)
+    everything = (("Infinite", None), ("Infinite", None))
+    assert set(whole.values()) == {(everything, None)}  # no range: every point is drawn
+    following = time_settings(blueprint(tmp_path / "300.rbl"))
+    window = (("CursorRelative", -300), ("CursorRelative", 0))
+    assert set(following.values()) == {(window, window)}
+    made = frontend_blueprint(None, plots.frontend_plots(), 0)
+    made.save("test", tmp_path / "frontend.rbl")
+    assert set(time_settings(blueprint(tmp_path / "frontend.rbl")).values()) == {(everything, None)}
+
+
+def test_the_history_of_decisions_is_shown_up_to_the_cursor(runs):
+    _, rrd = runs[0]
+    (view,) = [v for v in blueprint(rrd) if v.name == "Map"]
+    for path in e.HISTORY:
+        ranges = view.properties[f"ViewContents/overrides{path}/visualizers"]
+        assert {
+            (r["timeline"], r["range"]["start"], r["range"]["end"])
+            for r in ranges["VisibleTimeRanges:ranges"]
+        } == {
+            (timeline, ("Infinite", None), ("CursorRelative", 0))
+            for timeline in (e.POSE_TIMELINE, e.TIME_TIMELINE)
+        }
+    # the map itself shows the latest at the cursor: its trail is the re-logged trajectory
+    assert "VisibleTimeRanges" not in view.properties
 
 
 @pytest.mark.e2e

@@ -1,80 +1,120 @@
-"""The layout a recording opens with. A replay: the map, looked down on from above, with its
-legend and the association events below it; the camera (when there are images), the time
-series and the run's summary on the right; the pose timeline at the bottom. A front-end run:
-visual odometry and its legend; the camera and its counts."""
+"""The layout a recording opens with. A replay: the map, looked down on from above with its
+legend drawn below it; the camera (when there are images), the run's summary and the
+association events beside it; the time series across the bottom; the pose timeline below.
+A front-end run: visual odometry and its legend; the camera and its counts. A comparison of
+methods: `comparison.py`, from the same parts.
+
+Time: plots show the whole run (`[viz] plot_window = 0`) or a window of the last poses that
+follows the time cursor. The map shows each entity's latest value at the cursor (the
+trajectory is re-logged whole, so its trail is the whole run so far), except the history of
+decisions, shown from pose 0 to the cursor.
+"""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
+import rerun as rr
 import rerun.blueprint as rrb
 
 from pipeline.viz import draw
 from pipeline.viz import entities as e
+from pipeline.viz.plots import Plot
 
 # The map view's width over its height in these layouts at a 16:10 window: the default eye is
-# placed to see the whole map at this shape (another shape only changes the margin).
-REPLAY_MAP_ASPECT = 1.6
-FRONTEND_MAP_ASPECT = 0.95
+# placed to see the whole map at this shape (another shape only changes the margin), and the
+# legend's board is laid out for it.
+REPLAY_MAP_ASPECT = 1.75
+FRONTEND_MAP_ASPECT = 0.9
 # Tilt of the default eye from straight down (rad): a Z-up orbit needs the eye off the vertical.
 EYE_TILT = math.radians(12.0)
-# Legend swatches: at most this many a row, this far apart (in the legend view's units, rows
-# one unit apart: about 150 px between swatches at the view's default height).
-LEGEND_PER_ROW = 6
-LEGEND_SPACING = 5.0
+TIMELINES = (e.POSE_TIMELINE, e.TIME_TIMELINE)
 
 
-def _plot(name: str, *paths: str) -> rrb.TimeSeriesView:
+def plot_time(window: int) -> dict:
+    """A plot's time axis and time range: the whole run (`window` 0), or the last `window`
+    poses up to the time cursor. Without them the viewer shows a window of about 1,500 poses
+    around the cursor, so a long run is never seen whole."""
+    if window == 0:
+        whole = rrb.TimeRange(
+            start=rrb.TimeRangeBoundary.infinite(), end=rrb.TimeRangeBoundary.infinite()
+        )
+        return {"axis_x": rrb.TimeAxis(view_range=whole)}
+    start = rrb.TimeRangeBoundary.cursor_relative(seq=-window)
+    end = rrb.TimeRangeBoundary.cursor_relative(seq=0)
+    return {
+        "axis_x": rrb.TimeAxis(view_range=rrb.TimeRange(start=start, end=end)),
+        "time_ranges": rrb.VisibleTimeRange(e.POSE_TIMELINE, start=start, end=end),
+    }
+
+
+def plot_view(plot: Plot, window: int) -> rrb.TimeSeriesView:
+    """A plot's view: its lines, no legend (the title names them), over the whole run or a
+    following window."""
     return rrb.TimeSeriesView(
-        name=name,
-        origin=e.METRICS,
-        contents=[f"+ {p}" for p in paths],
-        plot_legend=rrb.PlotLegend(corner="LeftTop"),
+        name=plot.name,
+        origin="/",
+        contents=[f"+ {p}" for p in plot.paths],
+        plot_legend=rrb.PlotLegend(visible=False),
+        **plot_time(window),
     )
 
 
-def _map_view(name: str, extent: np.ndarray | None, aspect: float) -> rrb.Spatial3DView:
-    """A 3-D view whose eye looks down on every point of `extent` (N, 3), if given, in a view
-    of this `aspect`."""
+def _until_cursor() -> rrb.VisibleTimeRanges:
+    """From the start of the run to the time cursor, on either timeline."""
+    return rrb.VisibleTimeRanges(
+        [
+            rrb.VisibleTimeRange(
+                timeline,
+                start=rrb.TimeRangeBoundary.infinite(),
+                end=rrb.TimeRangeBoundary.cursor_relative(),
+            )
+            for timeline in TIMELINES
+        ]
+    )
+
+
+def map_view(
+    name: str, extent: np.ndarray | None, aspect: float, root: str = ""
+) -> rrb.Spatial3DView:
+    """A 3-D view of `root`'s world whose eye looks down on every point of `extent` (N, 3),
+    if given, in a view of this `aspect`; every landmark's ellipsoid hidden (one click away in
+    the blueprint panel), the history of decisions shown up to the cursor."""
     eye = rrb.EyeControls3D(kind="Orbital")
     if extent is not None and len(extent):
         position, target = draw.top_down_eye(extent, aspect, EYE_TILT)
         eye = rrb.EyeControls3D(
             kind="Orbital", position=position, look_target=target, eye_up=(0.0, 0.0, 1.0)
         )
+    overrides: dict = {root + e.UNCERTAINTY: rrb.EntityBehavior(visible=False)}
+    overrides.update({root + path: _until_cursor() for path in e.HISTORY})
     return rrb.Spatial3DView(
         name=name,
-        origin=e.WORLD,
+        origin=root + e.WORLD,
         eye_controls=eye,
         line_grid=rrb.LineGrid3D(visible=True, spacing=10.0),
-        # Every landmark's ellipsoid: one click away in the blueprint panel, off by default.
-        overrides={e.UNCERTAINTY: rrb.EntityBehavior(visible=False)},
+        overrides=overrides,
     )
 
 
-def legend_per_row(count: int) -> int:
-    """Swatches a row: two rows when one would be crowded, never more than LEGEND_PER_ROW."""
-    return min(LEGEND_PER_ROW, max(1, math.ceil(count / 2) if count > 4 else count))
-
-
-def _legend_view(count: int) -> tuple[rrb.Spatial2DView, float]:
-    """The legend's view, and its share of the map's column (the map's is 10)."""
-    per_row = legend_per_row(count)
-    rows = math.ceil(count / per_row)
-    view = rrb.Spatial2DView(
-        name="Legend",
-        origin=e.LEGEND,
-        titlebar=False,
-        visual_bounds=rrb.VisualBounds2D(
-            x_range=[-0.5 * LEGEND_SPACING, (per_row - 0.5) * LEGEND_SPACING],
-            y_range=[-0.5, rows + 0.2],  # room for the labels below the last row
+def events_view(name: str, origin: str, contents: list[str] | None = None) -> rrb.TextLogView:
+    """An event log; with `contents` (several runs' logs), each line names its entity."""
+    return rrb.TextLogView(
+        name=name,
+        origin=origin,
+        contents=contents or "$origin/**",
+        # The body names its pose: Rerun's timeline column is too narrow to read ("#2...").
+        columns=rrb.TextLogColumns(
+            timeline_columns=[rrb.encodings.TimelineColumn(e.POSE_TIMELINE, visible=False)],
+            text_log_columns=["entitypath", "loglevel", "body"]
+            if contents
+            else ["loglevel", "body"],
         ),
     )
-    return view, 0.2 + 0.6 * rows
 
 
-def _panels() -> list:
+def panels() -> list:
     return [
         rrb.TimePanel(timeline=e.POSE_TIMELINE, state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
@@ -82,71 +122,55 @@ def _panels() -> list:
     ]
 
 
+def series_styles(plots: list[Plot]) -> list[tuple[str, rr.SeriesLines]]:
+    """(entity, its line's name and colour) for every line of these plots: logged static."""
+    return [
+        (s.path, rr.SeriesLines(names=s.name, colors=s.rgb)) for plot in plots for s in plot.series
+    ]
+
+
 def replay_blueprint(
-    *, images: bool, ground_truth: bool, extent: np.ndarray | None, legend_items: int
+    *, images: bool, extent: np.ndarray | None, plots: list[Plot], plot_window: int
 ) -> rrb.Blueprint:
-    """Layout of a replay: map, legend, events; camera, time series, summary. `extent`: points
-    the default eye should see (the reference trajectories)."""
-    plots: list[rrb.View] = []
-    if ground_truth:
-        plots.append(_plot("Translation error (m)", e.ERROR_ONLINE, e.ERROR_FINAL))
-    plots += [
-        _plot("Landmarks and switches", e.LANDMARK_COUNT, e.SWITCH_COUNT),
-        _plot("Null-hypothesis rate", e.NULL_RATE),
-        _plot("Time per keyframe (ms)", e.STEP_MS, e.VIZ_MS),
-    ]
-    events = rrb.TextLogView(
-        name="Association events",
-        origin=e.EVENTS,
-        # The body names its pose: Rerun's timeline column is too narrow to read ("#2...").
-        columns=rrb.TextLogColumns(
-            timeline_columns=[rrb.encodings.TimelineColumn(e.POSE_TIMELINE, visible=False)],
-            text_log_columns=["loglevel", "body"],
-        ),
-    )
-    right: list[rrb.Container | rrb.View] = []
+    """Layout of a replay: the map (its legend below it) beside the camera, the summary and
+    the events; the time series across the whole width below, so that a long run's curves
+    get every pixel. `extent`: points the default eye should see (the reference
+    trajectories, the legend)."""
+    side: list[rrb.View] = []
     if images:
-        right.append(rrb.Spatial2DView(name="Left camera", origin=e.CAMERA))
-    right += [
-        rrb.Grid(*plots, grid_columns=2),
+        side.append(rrb.Spatial2DView(name="Left camera", origin=e.CAMERA))
+    side += [
         rrb.TextDocumentView(name="Summary", origin=e.SUMMARY),
+        events_view("Association events", e.EVENTS),
     ]
-    legend, legend_share = _legend_view(legend_items)
     return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                _map_view("Map", extent, REPLAY_MAP_ASPECT),
-                legend,
-                events,
-                row_shares=[10, legend_share, 3.5],
+        rrb.Vertical(
+            rrb.Horizontal(
+                map_view("Map", extent, REPLAY_MAP_ASPECT),
+                rrb.Vertical(*side, row_shares=[2.2, 3, 2] if images else [1, 1]),
+                column_shares=[3, 2],
             ),
-            rrb.Vertical(*right, row_shares=[2.2, 4, 2] if images else [4, 1.6]),
-            column_shares=[3, 2],
+            rrb.Grid(*[plot_view(p, plot_window) for p in plots], grid_columns=3),
+            row_shares=[6, 4],
         ),
-        *_panels(),
+        *panels(),
     )
 
 
-def frontend_blueprint(extent: np.ndarray | None, legend_items: int) -> rrb.Blueprint:
-    """Layout of a front-end run: visual odometry and detections, the camera, counts."""
-    legend, legend_share = _legend_view(legend_items)
+def frontend_blueprint(
+    extent: np.ndarray | None, plots: list[Plot], plot_window: int
+) -> rrb.Blueprint:
+    """Layout of a front-end run: visual odometry and detections (its legend below), the
+    camera, counts."""
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Vertical(
-                _map_view("Visual odometry", extent, FRONTEND_MAP_ASPECT),
-                legend,
-                row_shares=[10, legend_share],
-            ),
+            map_view("Visual odometry", extent, FRONTEND_MAP_ASPECT),
             rrb.Vertical(
                 rrb.Spatial2DView(name="Left camera", origin=e.CAMERA),
-                rrb.Grid(
-                    _plot("Detections per keyframe", e.TAG_COUNT, e.BOX_COUNT),
-                    _plot("VO inliers", e.VO_INLIERS),
-                    grid_columns=2,
-                ),
+                rrb.Grid(*[plot_view(p, plot_window) for p in plots], grid_columns=2),
                 row_shares=[1, 1],
             ),
             column_shares=[1, 1],
         ),
-        *_panels(),
+        *panels(),
     )

@@ -23,6 +23,7 @@ class VizConfig:
     jpeg_quality: int = setting(between(1, 100))
     robot_axis_length_m: float = setting(POSITIVE)
     smoothing_window: int = setting(at_least(1))
+    plot_window: int = setting(at_least(0))
     warn_changes_at_once: int = setting(at_least(1))
     warn_changes_per_detection: int = setting(at_least(1))
 

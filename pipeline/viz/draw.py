@@ -3,8 +3,8 @@
 Colours per class and per kind of line, uncertainty ellipsoids from covariances, each
 detection's hypotheses with their weights and winner, the labels of landmarks and detections,
 the reference trajectories (ground truth aligned at pose 0, dead reckoning) that the estimate is
-shown against, the default eye over the map, the legend's layout, and a trailing median for
-plots of noisy per-keyframe values.
+shown against, the default eye over the map, and a trailing median for plots of noisy
+per-keyframe values. The legend: `legend.py`.
 """
 
 from __future__ import annotations
@@ -45,16 +45,21 @@ TRUTH_RGB = (125, 125, 125)
 ODOMETRY_RGB = (235, 205, 50)
 
 # Hypothesis lines: the winner stands out, losers are thin and bluish grey, the null hypothesis
-# red; switches magenta.
+# violet; switches magenta. Red is kept for what is wrong: an association whose landmark
+# stands for another true landmark (`correctness.py`). Merges: ice blue.
 WINNER_RGB = (60, 220, 90)
 NEW_LANDMARK_RGB = (175, 240, 175)
 LOSER_RGB = (140, 150, 175)
-NULL_WINNER_RGB = (235, 50, 50)
-NULL_LOSER_RGB = (150, 80, 80)
+NULL_WINNER_RGB = (130, 110, 255)
+NULL_LOSER_RGB = (95, 85, 160)
 SWITCH_RGB = (255, 60, 255)
+WRONG_RGB = (240, 40, 40)
+MERGE_RGB = (120, 235, 255)
 
 # Rerun's default vertical field of view of a 3-D view (re_view_spatial's Eye::DEFAULT_FOV_Y).
 RERUN_FOV_Y = math.radians(55.0)
+# The least half height (m) the default eye shows: a map of one point still gets a view.
+MIN_VIEW_HALF_HEIGHT = 1.0
 
 
 def packed_rgba(rgb, alpha: int = 255) -> np.ndarray:
@@ -134,6 +139,7 @@ class Hypothesis:
     weight: float
     winner: bool
     new_landmark: bool  # the detection made this landmark: nothing in the map matched it
+    wrong: bool = False  # the winner, judged against ground truth: another object's landmark
 
 
 def detection_hypotheses(
@@ -169,9 +175,12 @@ def detection_hypotheses(
 
 
 def hypothesis_style(h: Hypothesis) -> tuple[tuple[int, int, int], float]:
-    """Colour and width (UI points) of a hypothesis line: wider with weight, winner brightest."""
+    """Colour and width (UI points) of a hypothesis line: wider with weight, winner brightest,
+    a wrong winner red."""
     if h.landmark_id == NULL:
         colour = NULL_WINNER_RGB if h.winner else NULL_LOSER_RGB
+    elif h.winner and h.wrong:
+        colour = WRONG_RGB
     elif h.winner:
         colour = NEW_LANDMARK_RGB if h.new_landmark else WINNER_RGB
     else:
@@ -215,48 +224,10 @@ def top_down_eye(
     low, high = np.min(points, axis=0), np.max(points, axis=0)
     target = 0.5 * (low + high)
     half_x, half_y = 0.5 * (high[:2] - low[:2])
-    half_height = max(half_y, half_x / aspect, 1.0)  # a map of one point still gets a view
+    half_height = max(half_y, half_x / aspect, MIN_VIEW_HALF_HEIGHT)
     distance = margin * half_height / math.tan(0.5 * fov_y) + 0.5 * (high[2] - low[2])
     position = target + distance * np.array([0.0, -math.sin(tilt), math.cos(tilt)])
     return position, target
-
-
-@dataclass(frozen=True)
-class LegendItem:
-    label: str
-    rgb: tuple[int, int, int]
-    line: bool  # a short line (trajectories, hypotheses) or a dot (landmarks, marks)
-
-
-def class_legend(class_names: Sequence[str]) -> list[LegendItem]:
-    rgb = class_colors(len(class_names))
-    return [
-        LegendItem(name, (int(rgb[c, 0]), int(rgb[c, 1]), int(rgb[c, 2])), line=False)
-        for c, name in enumerate(class_names)
-    ]
-
-
-def replay_legend(class_names: Sequence[str], ground_truth: bool) -> list[LegendItem]:
-    """The landmark classes, the trajectories, and the marks of the association step."""
-    truth = [LegendItem("ground truth", TRUTH_RGB, True)] if ground_truth else []
-    return [
-        *class_legend(class_names),
-        LegendItem("estimate", ESTIMATE_RGB, True),
-        *truth,
-        LegendItem("odometry alone", ODOMETRY_RGB, True),
-        LegendItem("chosen", WINNER_RGB, True),
-        LegendItem("new landmark", NEW_LANDMARK_RGB, True),
-        LegendItem("other candidate", LOSER_RGB, True),
-        LegendItem("null hypothesis", NULL_WINNER_RGB, False),
-        LegendItem("switch", SWITCH_RGB, True),
-    ]
-
-
-def legend_positions(count: int, per_row: int, spacing: float) -> np.ndarray:
-    """(count, 2) centres of legend swatches, row by row, `spacing` apart, rows one unit down
-    (a 2-D view's y points down); labels go below each swatch."""
-    k = np.arange(count)
-    return np.stack([spacing * (k % per_row), k // per_row], axis=1).astype(float)
 
 
 def _matrix(translation, rotation) -> np.ndarray:
@@ -287,14 +258,22 @@ def aligned_ground_truth(
     return indices, positions @ alignment[:3, :3].T + alignment[:3, 3]
 
 
+def aligned_points(points, alignment: np.ndarray) -> np.ndarray:
+    """Points (N, 3) of the ground truth's frame in the estimate's."""
+    return np.asarray(points, dtype=float).reshape(-1, 3) @ alignment[:3, :3].T + alignment[:3, 3]
+
+
+def dead_reckoning_poses(odometry: list[Odometry]) -> np.ndarray:
+    """The poses (N + 1, 4, 4) the odometry alone gives, from the origin."""
+    poses = [np.eye(4)]
+    for step in odometry:
+        poses.append(poses[-1] @ _matrix(step.translation, step.rotation))
+    return np.array(poses)
+
+
 def dead_reckoning(odometry: list[Odometry]) -> np.ndarray:
     """Positions (N + 1, 3) of the poses the odometry alone gives, from the origin."""
-    pose = np.eye(4)
-    positions = [pose[:3, 3].copy()]
-    for step in odometry:
-        pose = pose @ _matrix(step.translation, step.rotation)
-        positions.append(pose[:3, 3].copy())
-    return np.array(positions)
+    return dead_reckoning_poses(odometry)[:, :3, 3]
 
 
 def body_to_world(rows: np.ndarray, points: np.ndarray) -> np.ndarray:

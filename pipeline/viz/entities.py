@@ -29,6 +29,17 @@ CANDIDATES = "/world/associations/candidates"
 NULL_WINS = "/world/associations/null"  # detections the null hypothesis took this keyframe
 SWITCHES = "/world/associations/switches"  # earlier detections whose landmark changed now
 REJECTED = "/world/associations/rejected"  # at the end: every detection left to the null
+# Where the log names each detection's true landmark: every detection whose landmark stands
+# for another one now (`correctness.py`), a line from its pose to that landmark; re-logged at
+# every refresh and at the end.
+WRONG = "/world/associations/wrong"
+
+# Decisions where and when they happened, each logged once at its pose and shown from pose 0 to
+# the time cursor (the map view's time range for these entities): null-hypothesis decisions at
+# the point the detection measured, merges as a line from the duplicate to the survivor.
+NULL_DECISIONS = "/world/history/null_decisions"
+MERGES = "/world/history/merges"
+HISTORY = (NULL_DECISIONS, MERGES)
 
 CAMERA = "/camera/left"
 CAMERA_DETECTIONS = "/camera/left/detections"  # boxes, labelled with class and association
@@ -37,16 +48,18 @@ CAMERA_TAGS = "/camera/left/tags"  # tag outlines (front-end)
 EVENTS = "/events"  # text: null-hypothesis wins and association switches
 SUMMARY = "/summary"  # text: the run's counts as it goes, and its metrics at the end
 
-# A 2-D view of swatches naming the map's colours (static)
-LEGEND = "/legend"
-LEGEND_MARKS = "/legend/marks"
-LEGEND_LINES = "/legend/lines"
+# Swatches naming the map's colours, on a board below the map (static; `legend.py`)
+LEGEND = "/world/legend"
+LEGEND_MARKS = "/world/legend/marks"
+LEGEND_LINES = "/world/legend/lines"
 
 METRICS = "/metrics"
 ERROR_ONLINE = "/metrics/translation_error/online"  # newest pose when it was added
 ERROR_FINAL = "/metrics/translation_error/final"  # every pose in the final estimate
 LANDMARK_COUNT = "/metrics/counts/landmarks"
 SWITCH_COUNT = "/metrics/counts/switches"  # cumulative
+MERGE_COUNT = "/metrics/counts/merges"  # cumulative
+WRONG_COUNT = "/metrics/associations/wrong"  # detections so far whose association is wrong now
 NULL_RATE = "/metrics/null_rate"  # detections associated to the null hypothesis, so far
 STEP_MS = "/metrics/time/backend_ms"  # trailing median of the per-keyframe times
 VIZ_MS = "/metrics/time/viz_ms"

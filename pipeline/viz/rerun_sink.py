@@ -8,25 +8,20 @@ time series) is held back and sent as columns every `refresh_every` keyframes: o
 per entity instead of one per keyframe, since each call costs ~0.1 ms. A refresh also re-logs
 the whole trajectory and the landmarks that moved; the end of the run re-logs everything from
 the final estimate. Entity paths: `pipeline/viz/entities.py`; what is drawn and said:
-`draw.py`, `events.py`, `summary.py`; the layout: `blueprint.py`.
+`draw.py`, `events.py`, `summary.py`, `marks.py` (the legend, wrong associations, the history
+of decisions), `labels.py` (which labels fit); which associations are wrong: `correctness.py`;
+the plots: `plots.py`; the layout: `blueprint.py`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import os
-import shutil
-import socket
-import sys
 import time
-import uuid
-import weakref
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
-from urllib.parse import urlparse
 
 import numpy as np
 import rerun as rr
@@ -34,19 +29,21 @@ from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
-from pipeline.errors import InputError
 from pipeline.geometry import point_from_bearing_elevation_range
 from pipeline.log.schemas import LEFT_IMAGE
-from pipeline.outputs import atomic_output
-from pipeline.viz import draw, events
+from pipeline.viz import draw, events, labels, legend, marks, plots
 from pipeline.viz import entities as e
 from pipeline.viz.blueprint import (
-    LEGEND_SPACING,
+    FRONTEND_MAP_ASPECT,
+    REPLAY_MAP_ASPECT,
     frontend_blueprint,
-    legend_per_row,
     replay_blueprint,
+    series_styles,
 )
 from pipeline.viz.config import VizConfig, load_viz_config
+from pipeline.viz.correctness import WRONG, AssociationTally, verdicts
+from pipeline.viz.frame import board_below, replay_frame
+from pipeline.viz.stream import Destination
 from pipeline.viz.summary import RunState, summary_markdown
 
 if TYPE_CHECKING:
@@ -56,51 +53,12 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_PORT = 9876
-VIEWER_WAIT_S = 2.0
 # Relative change of a landmark's covariance worth logging again (about 2.5 % in its axes).
 ELLIPSOID_TOLERANCE = 0.05
 MEDIA_TYPES = {"jpeg": "image/jpeg", "jpg": "image/jpeg", "png": "image/png"}
 # Every landmark's uncertainty ellipsoid: thin (hundreds of them, when shown).
 ELLIPSOID_LINE_PT = 0.5
 LEVELS = {events.INFO: rr.TextLogLevel.INFO, events.WARN: rr.TextLogLevel.WARN}
-
-
-def viewer_url(address: str) -> str:
-    """A gRPC URL from `--connect`: a URL as Rerun takes it, `HOST:PORT`, or a bare port."""
-    address = address.strip()
-    if address.isdigit():
-        address = f"127.0.0.1:{address}"
-    if "://" not in address:
-        address = f"rerun+http://{address}/proxy"
-    parsed = urlparse(address)
-    if parsed.scheme not in ("rerun", "rerun+http", "rerun+https") or not parsed.hostname:
-        raise InputError(f"--connect {address}: expected HOST:PORT or rerun+http://HOST:PORT/proxy")
-    try:
-        parsed.port  # noqa: B018 - raises on a port that is not a number
-    except ValueError:
-        raise InputError(f"--connect {address}: the port is not a number") from None
-    return address
-
-
-def _listening(url: str, timeout_s: float) -> bool:
-    parsed = urlparse(url)
-    default = 443 if parsed.scheme == "rerun+https" else DEFAULT_PORT
-    try:
-        with socket.create_connection((parsed.hostname, parsed.port or default), timeout_s):
-            return True
-    except OSError:
-        return False
-
-
-def _rerun_executable() -> str | None:
-    """The viewer of this environment, found even when its bin/ is not on PATH."""
-    beside = Path(sys.executable).parent / "rerun"
-    return str(beside) if beside.exists() else shutil.which("rerun")
-
-
-def _discard(path: Path) -> None:
-    path.unlink(missing_ok=True)
 
 
 def _differs(covariance: np.ndarray | None, shown: np.ndarray | None) -> bool:
@@ -183,22 +141,19 @@ class RerunSink:
 
     def __init__(
         self,
-        recording: rr.RecordingStream,
+        destination: Destination,
         config: VizConfig,
         *,
-        target: Path | None = None,
-        temporary: Path | None = None,
+        map_aspect: float = REPLAY_MAP_ASPECT,
     ):
-        self.rec = recording
+        self.destination = destination
+        self.rec = destination.rec
         self.config = config
         self.wants_images = config.image_every > 0
-        self.target = target  # the .rrd, renamed into place on a finished run's close
-        self.temporary = temporary
-        # A run that fails before `close` (or never reaches it) leaves no temporary behind.
-        self._discard_at_exit = (
-            weakref.finalize(self, _discard, temporary) if temporary is not None else None
-        )
-        self._started = self._finished = self._closed = False
+        # the map view's width over height in the layout the run is shown in: its default eye
+        # and its legend's board are made for it
+        self.map_aspect = map_aspect
+        self._started = self._finished = False
         self._held = _HeldRows()
         self._class_names: tuple[str, ...] = ()
         self._colours = draw.packed_rgba(draw.class_colors(1))
@@ -217,6 +172,8 @@ class RerunSink:
         self._method = ""
         self._step_ms: list[float] = []  # per keyframe, for the trailing medians
         self._viz_ms: list[float] = []
+        self._tally: AssociationTally | None = None  # where the log names true landmarks
+        self._label_box = (0.0, 0.0)  # a label's size in the map (m) at the default eye
 
     # ----------------------------------------------------------------------------------- open
     @classmethod
@@ -228,62 +185,25 @@ class RerunSink:
         spawn: bool = False,
         connect: str | None = None,
         config: VizConfig | None = None,
+        map_aspect: float = REPLAY_MAP_ASPECT,
     ) -> RerunSink:
         """A sink for exactly one of: a recording file, a new viewer, a running viewer."""
-        if (rrd is not None) + bool(spawn) + (connect is not None) != 1:
-            raise InputError("choose one of --rrd FILE, --spawn, --connect ADDR")
-        config = config or load_viz_config()
-        # Rerun's own switch: a stream it disables would write an empty file (and say so at
-        # exit). Read as Rerun reads it.
-        if os.environ.get("RERUN", "").strip().lower() in ("0", "false", "off", "no"):
-            raise InputError("Rerun is turned off by the environment variable RERUN: unset it")
-        recording = rr.RecordingStream(application, recording_id=uuid.uuid4())
-        # The log's own stamps make the `log_time` timeline; no wall-clock time, no ticks.
-        recording.set_log_time_enabled(False)
-        recording.set_log_tick_enabled(False)
-        if rrd is not None:
-            target = Path(rrd)
-            if target.is_dir():
-                raise InputError(f"--rrd {target}: is a directory")
-            try:
-                fd, temporary = atomic_output(target)
-            except OSError as exc:
-                raise InputError(f"--rrd {target}: cannot be written ({exc.strerror})") from None
-            os.close(fd)
-            return cls(recording, config, target=target, temporary=temporary)
-        if spawn:
-            url = f"rerun+http://127.0.0.1:{DEFAULT_PORT}/proxy"
-            if not _listening(url, VIEWER_WAIT_S):  # else a viewer is there already: use it
-                executable = _rerun_executable()
-                if executable is None:
-                    raise InputError("--spawn: no `rerun` viewer executable found")
-                rr.spawn(port=DEFAULT_PORT, connect=False, executable_path=executable)
-                if not _listening(url, VIEWER_WAIT_S):
-                    raise InputError(
-                        "--spawn: the Rerun viewer did not start (no display?); "
-                        "use --rrd FILE, or --connect to a viewer elsewhere"
-                    )
-            recording.connect_grpc(url)
-            return cls(recording, config)
-        url = viewer_url(connect or "")
-        # Without a viewer Rerun buffers and retries, and every log call slows to a crawl.
-        if not _listening(url, VIEWER_WAIT_S):
-            raise InputError(f"--connect {connect}: no Rerun viewer listening at {url}")
-        recording.connect_grpc(url)
-        return cls(recording, config)
+        destination = Destination.open(application, rrd=rrd, spawn=spawn, connect=connect)
+        return cls(destination, config or load_viz_config(), map_aspect=map_aspect)
 
     def _begin(
         self,
         blueprint: Any,
         name: str,
         class_names: tuple[str, ...],
-        legend: list[draw.LegendItem],
+        legend_items: list[legend.LegendItem],
+        board: legend.Board,
+        plot_list: list[plots.Plot],
     ) -> None:
         if self._started:
             raise RuntimeError("a RerunSink records one run")
         self._started = True
-        if self.temporary is not None:
-            self.rec.save(self.temporary)
+        self.destination.start()
         self.rec.send_blueprint(blueprint)
         self.rec.send_recording_name(name)
         self.rec.log(e.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -303,41 +223,16 @@ class RerunSink:
             ),
             static=True,
         )
-        self._log_legend(legend)
-
-    def _log_legend(self, items: list[draw.LegendItem]) -> None:
-        """The swatches of the legend view, each labelled below (static): a short line for
-        lines, a dot for marks."""
-        centres = draw.legend_positions(len(items), legend_per_row(len(items)), LEGEND_SPACING)
-        half = np.array([0.35 * LEGEND_SPACING, 0.0])
-        for line in (True, False):
-            chosen = [
-                (c, item) for c, item in zip(centres, items, strict=True) if item.line == line
-            ]
-            if not chosen:
-                continue
-            style = {
-                "colors": draw.packed_rgba([item.rgb for _, item in chosen]),
-                "labels": [item.label for _, item in chosen],
-                "show_labels": True,
-            }
-            swatches = (
-                rr.LineStrips2D(
-                    [np.array([c - half, c + half]) for c, _ in chosen],
-                    radii=rr.Radius.ui_points(3.0),
-                    **style,
-                )
-                if line
-                else rr.Points2D([c for c, _ in chosen], radii=rr.Radius.ui_points(6.0), **style)
-            )
-            self.rec.log(e.LEGEND_LINES if line else e.LEGEND_MARKS, swatches, static=True)
+        for path, swatches in marks.legend_swatches(legend_items, board):
+            self.rec.log(path, swatches, static=True)
+        for path, style in series_styles(plot_list):
+            self.rec.log(path, style, static=True)
+        # labels around the current pose are thinned to those that fit at the default eye
+        self._label_box = labels.label_box(board.shown_height)
 
     def _set_time(self, pose_index: int, stamp_ns: int) -> None:
         self.rec.set_time(e.POSE_TIMELINE, sequence=pose_index)
         self.rec.set_time(e.TIME_TIMELINE, timestamp=np.datetime64(int(stamp_ns), "ns"))
-
-    def _series(self, path: str, name: str, colour: tuple[int, int, int]) -> None:
-        self.rec.log(path, rr.SeriesLines(names=name, colors=colour), static=True)
 
     def _trail_style(self, path: str) -> None:
         """Colour and width of a trail whose strips are sent as columns (strips only)."""
@@ -373,20 +268,24 @@ class RerunSink:
     # --------------------------------------------------------------------------------- replay
     def start(self, log: DetectionLog, method: str) -> None:
         left_images = log.images.get(LEFT_IMAGE, []) if self.wants_images else []
-        alignment = draw.ground_truth_alignment(log.ground_truth_poses)
-        odometry = draw.dead_reckoning(log.odometry)
-        truth = np.zeros((0, 3))
-        if alignment is not None:
-            indices, truth = draw.aligned_ground_truth(log.ground_truth_poses, alignment)
-            self._truth = {int(i): p for i, p in zip(indices, truth, strict=True)}
-        legend = draw.replay_legend(log.metadata.class_names, alignment is not None)
+        frame = replay_frame(log, self.map_aspect)
+        alignment, truth, odometry = frame.alignment, frame.truth, frame.odometry
+        self._truth = {int(i): p for i, p in zip(frame.truth_indices, truth, strict=True)}
+        # Wrong associations are judged where the log names each detection's true landmark.
+        self._tally = AssociationTally() if frame.truth_labels else None
+        items, board = frame.items, frame.board
+        plot_list = plots.replay_plots(
+            frame.ground_truth, frame.truth_labels, self.config.smoothing_window
+        )
         blueprint = replay_blueprint(
             images=bool(left_images),
-            ground_truth=alignment is not None,
-            extent=np.vstack([odometry, truth]),
-            legend_items=len(legend),
+            extent=frame.extent,
+            plots=plot_list,
+            plot_window=self.config.plot_window,
         )
-        self._begin(blueprint, f"mmslam replay {method}", log.metadata.class_names, legend)
+        self._begin(
+            blueprint, f"mmslam replay {method}", log.metadata.class_names, items, board, plot_list
+        )
         self._method = method
         self._stamps_ns = np.array(log.pose_stamps_ns(), dtype=np.int64)
         self._set_time(0, self._stamp(0))
@@ -415,11 +314,10 @@ class RerunSink:
             )
             landmarks = log.ground_truth_landmarks
             if landmarks is not None and landmarks.landmarks:
-                points = np.array([lm.position for lm in landmarks.landmarks], dtype=float)
                 self.rec.log(
                     e.GROUND_TRUTH_LANDMARKS,
                     rr.Points3D(
-                        points @ alignment[:3, :3].T + alignment[:3, 3],
+                        draw.aligned_points([lm.position for lm in landmarks.landmarks], alignment),
                         colors=draw.packed_rgba(draw.TRUTH_RGB)[None],
                         class_ids=[lm.class_id for lm in landmarks.landmarks],
                         labels=[f"true {lm.id}" for lm in landmarks.landmarks],
@@ -428,15 +326,7 @@ class RerunSink:
                     ),
                     static=True,
                 )
-            self._series(e.ERROR_ONLINE, "newest pose", (230, 80, 60))
-            self._series(e.ERROR_FINAL, "final estimate", (60, 120, 230))
         self._trail_style(e.TRAJECTORY_RECENT)
-        self._series(e.LANDMARK_COUNT, "landmarks", (31, 119, 180))
-        self._series(e.SWITCH_COUNT, "switches (total)", draw.SWITCH_RGB)
-        self._series(e.NULL_RATE, "null-hypothesis rate", draw.NULL_WINNER_RGB)
-        window = self.config.smoothing_window
-        self._series(e.STEP_MS, f"back-end (median of {window})", (170, 170, 170))
-        self._series(e.VIZ_MS, f"recording (median of {window})", (148, 103, 189))
 
     def _fetch(
         self, backend: Backend, pose_indices: set[int], landmark_ids: set[int]
@@ -552,6 +442,13 @@ class RerunSink:
         for j in sorted(ids - set(shown)):
             self._log_landmark(backend.landmarks, j, points[j], None)
         self._log_uncertainty()
+        if self._tally is not None:
+            resolve = backend.landmarks.resolve
+            self._log_wrong(
+                [(key, resolve(j)) for key, j in self._tally.wrong()],
+                lambda k: poses[k][9:],
+                lambda j: points[j][9:],
+            )
 
     def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
         started = time.perf_counter()
@@ -561,9 +458,13 @@ class RerunSink:
         self._set_time(i, stamp)
         for fallback in report.solver_fallbacks:
             self._event(events.solver_fallback(i, fallback.kind, fallback.reason))
+        merged_from = {}  # duplicate -> where it was last drawn
         for duplicate, _ in report.merged:  # drawn now as the landmark it was merged into
             self.rec.log(e.landmark_path(duplicate), rr.Clear(recursive=True))
-            self._landmarks.pop(duplicate, None)
+            shown = self._landmarks.pop(duplicate, None)
+            if shown is not None:
+                merged_from[duplicate] = shown.position
+        self._judge(report, backend.landmarks.resolve)
         # Landmark ids are never reused: ids from the next one before this keyframe are new.
         hypotheses = [
             draw.detection_hypotheses(r, c, r.landmark_id >= self._landmark_total)
@@ -580,9 +481,21 @@ class RerunSink:
             ]
             for hs in hypotheses
         ]
+        if self._tally is not None:  # a winner whose landmark stands for another object: red
+            tally = self._tally
+            hypotheses = [
+                [
+                    dataclasses.replace(h, wrong=tally.verdict((i, h.detection_index)) == WRONG)
+                    if h.winner
+                    else h
+                    for h in hs
+                ]
+                for hs in hypotheses
+            ]
         touched = {h.landmark_id for hs in hypotheses for h in hs if h.landmark_id != NULL}
         for record in report.switched:
             touched.update(record.landmark_ids)
+        touched.update(survivor for _, survivor in report.merged)
         pose_indices = {i} | {r.measurement.pose_index for r in report.switched}
         poses, points = self._fetch(backend, pose_indices, touched)
 
@@ -608,6 +521,7 @@ class RerunSink:
 
         self._log_hypotheses(report.records, hypotheses, row, points, backend.landmarks)
         self._log_associations(report, poses, points)
+        self._log_merges(report.merged, merged_from, points, backend.landmarks.resolve)
         self._log_image(i, [(r.measurement.detection, r.landmark_id) for r in report.records])
 
         held = self._held.scalars
@@ -616,6 +530,9 @@ class RerunSink:
             held[e.ERROR_ONLINE].append((i, stamp, error))
         held[e.LANDMARK_COUNT].append((i, stamp, len(backend.landmarks)))
         held[e.SWITCH_COUNT].append((i, stamp, backend.switches))
+        held[e.MERGE_COUNT].append((i, stamp, backend.merges))
+        if self._tally is not None:
+            held[e.WRONG_COUNT].append((i, stamp, self._tally.counts()[WRONG]))
         rate = self._null_count / len(self._winners) if self._winners else 0.0
         held[e.NULL_RATE].append((i, stamp, rate))
         state = self._state(i, len(backend.landmarks), backend.switches, error_m=error)
@@ -625,6 +542,57 @@ class RerunSink:
         held[e.STEP_MS].append((i, stamp, draw.trailing_median(self._step_ms, window)))
         self._viz_ms.append(1e3 * (time.perf_counter() - started))
         held[e.VIZ_MS].append((i, stamp, draw.trailing_median(self._viz_ms, window)))
+
+    def _judge(self, report: KeyframeReport, resolve: Any) -> None:
+        """Bring the verdicts up to date with this keyframe: its detections, the earlier ones
+        whose association changed, the landmarks merged."""
+        if self._tally is None:
+            return
+        for record in [*report.records, *report.switched]:
+            m = record.measurement
+            j = record.landmark_id
+            truth = m.detection.truth_landmark_id
+            self._tally.assign(
+                (m.pose_index, m.detection_index), truth, resolve(j) if j != NULL else j
+            )
+        for duplicate, survivor in report.merged:
+            self._tally.merge(duplicate, resolve(survivor))
+
+    def _log_wrong(
+        self, wrong: list[tuple[tuple[int, int], int]], pose_at: Any, landmark_at: Any
+    ) -> None:
+        """Every detection judged wrong now, a red line from its pose to its landmark;
+        `pose_at(k)` and `landmark_at(j)` give positions."""
+        if wrong:
+            self.rec.log(
+                e.WRONG,
+                *marks.wrong_lines(
+                    np.array([pose_at(k) for (k, _), _ in wrong]),
+                    np.array([landmark_at(j) for _, j in wrong]),
+                    [f"p{k} d{d} → L{j}" for (k, d), j in wrong],
+                ),
+            )
+        self._clear_unless(e.WRONG, bool(wrong))
+
+    def _log_merges(
+        self,
+        merged: list[tuple[int, int]],
+        merged_from: dict[int, np.ndarray],
+        points: dict[int, np.ndarray],
+        resolve: Any,
+    ) -> None:
+        """Each merge where it happened: a line from the duplicate to its survivor, kept in
+        the history (shown up to the time cursor)."""
+        drawn = [(d, resolve(s)) for d, s in merged if d in merged_from]
+        if drawn:
+            self.rec.log(
+                e.MERGES,
+                marks.merges(
+                    np.array([merged_from[d] for d, _ in drawn]),
+                    np.array([points[s][9:] for _, s in drawn]),
+                    [f"L{d} → L{s}" for d, s in drawn],
+                ),
+            )
 
     def _state(
         self, pose_index: int, landmarks: int, switches: int, error_m: float | None = None
@@ -649,10 +617,12 @@ class RerunSink:
         landmarks: LandmarkMap,
     ) -> None:
         """Per detection, a line from the pose to every landmark it may be, or to where it puts
-        its landmark for the null hypothesis; width by weight, the winner bright, each labelled
-        with its weight. The measured points are drawn too, coloured by reported class, and the
-        landmarks weighed are labelled with their id, class and its probability."""
-        strips, colours, widths, labels, flat = [], [], [], [], []
+        its landmark for the null hypothesis; width by weight, the winner bright (red if wrong),
+        the winner's labelled with its weight. The measured points are drawn too, coloured by
+        reported class, and the landmarks weighed are labelled with their id, class and its
+        probability. Labels that would cover others at the default eye are left out: the
+        winners' landmarks first, then the winners' lines, then the other candidates."""
+        strips, colours, widths, texts, flat = [], [], [], [], []
         origin = pose_row[9:]
         measured = np.zeros((len(records), 3))
         for k, (record, hs) in enumerate(zip(records, hypotheses, strict=True)):
@@ -663,14 +633,23 @@ class RerunSink:
                 strips.append(np.array([origin, end]))
                 colours.append(colour)
                 widths.append(rr.Radius.ui_points(width))
-                labels.append(draw.hypothesis_label(h))
+                texts.append(draw.hypothesis_label(h))
                 flat.append(h)
+        weighed = sorted({h.landmark_id for h in flat if h.landmark_id != NULL})
+        named = [self._landmark_label(landmarks, j) for j in weighed]
+        centres = [points[j][9:] for j in weighed]
+        landmarks_shown, lines_shown = labels.keyframe_labels(
+            flat, strips, weighed, centres, self._label_box
+        )
         if flat:
             classes = [r.measurement.detection.class_id for r in records]
             self.rec.log(
                 e.HYPOTHESES,
                 rr.LineStrips3D(
-                    strips, colors=draw.packed_rgba(colours), radii=widths, labels=labels
+                    strips,
+                    colors=draw.packed_rgba(colours),
+                    radii=widths,
+                    labels=[t if ok else "" for t, ok in zip(texts, lines_shown, strict=True)],
                 ),
                 rr.Points3D(
                     measured,
@@ -687,16 +666,16 @@ class RerunSink:
                 ),
             )
         self._clear_unless(e.HYPOTHESES, bool(flat))
-        weighed = sorted({h.landmark_id for h in flat if h.landmark_id != NULL})
         if weighed:
-            named = [self._landmark_label(landmarks, j) for j in weighed]
             classes = [c for c, _ in named]
-            centres = [points[j][9:] for j in weighed]
             parts: list[Any] = [
                 rr.Points3D(
                     centres,
                     class_ids=classes,
-                    labels=[label for _, label in named],
+                    labels=[
+                        label if ok else ""
+                        for (_, label), ok in zip(named, landmarks_shown, strict=True)
+                    ],
                     radii=rr.Radius.ui_points(6.0),
                     show_labels=True,
                 )
@@ -790,6 +769,8 @@ class RerunSink:
                 ),
             )
         self._clear_unless(e.NULL_WINS, bool(null_points))
+        if null_points:  # and kept where they happened, shown up to the time cursor
+            self.rec.log(e.NULL_DECISIONS, marks.null_decisions(np.array(null_points), null_labels))
         if strips:
             self.rec.log(
                 e.SWITCHES,
@@ -864,6 +845,8 @@ class RerunSink:
                 columns=rr.Scalars.columns(scalars=errors),
             )
 
+        if self._tally is not None:
+            self._log_final_wrong(result, rows, last)
         rejected = [r.measurement for r in result.records if r.landmark_id == NULL]
         if rejected:
             self.rec.log(
@@ -881,18 +864,30 @@ class RerunSink:
         self.rec.log(e.SUMMARY, rr.TextDocument(text, media_type="text/markdown"))
         self._finished = True
 
+    def _log_final_wrong(self, result: BackendResult, rows: np.ndarray, last: int) -> None:
+        """The final associations judged as `metrics.json` judges them: red lines, and the
+        count at the last pose."""
+        records = result.records
+        keys = [(r.measurement.pose_index, r.measurement.detection_index) for r in records]
+        resolve = result.landmarks.resolve
+        chosen = [resolve(r.landmark_id) if r.landmark_id != NULL else NULL for r in records]
+        judged = verdicts([r.measurement.detection.truth_landmark_id for r in records], chosen)
+        where = {
+            j: _row(v)[9:] for j, v in zip(result.landmark_ids, result.landmark_values, strict=True)
+        }
+        wrong = [(k, j) for k, j, v in zip(keys, chosen, judged, strict=True) if v == WRONG]
+        self._log_wrong(wrong, lambda k: rows[k, 9:], where.__getitem__)
+        self.rec.log(e.WRONG_COUNT, rr.Scalars(len(wrong)))
+
     # ------------------------------------------------------------------------------- frontend
     def frontend_start(self, metadata: LogMetadata, extent: np.ndarray | None = None) -> None:
-        legend = [
-            *draw.class_legend(metadata.class_names),
-            draw.LegendItem("visual odometry", draw.ESTIMATE_RGB, True),
-        ]
-        blueprint = frontend_blueprint(extent, len(legend))
-        self._begin(blueprint, "mmslam frontend", metadata.class_names, legend)
+        items = legend.frontend_legend(metadata.class_names)
+        reference = extent if extent is not None and len(extent) else np.zeros((1, 3))
+        board, seen = board_below(reference, items, FRONTEND_MAP_ASPECT)
+        plot_list = plots.frontend_plots()
+        blueprint = frontend_blueprint(seen, plot_list, self.config.plot_window)
+        self._begin(blueprint, "mmslam frontend", metadata.class_names, items, board, plot_list)
         self._trail_style(e.VO_TRAJECTORY_RECENT)
-        self._series(e.TAG_COUNT, "tags", (31, 119, 180))
-        self._series(e.BOX_COUNT, "boxes", (255, 127, 14))
-        self._series(e.VO_INLIERS, "inliers", (44, 160, 44))
 
     def frontend_keyframe(self, keyframe: FrontendKeyframe) -> None:
         i, stamp = keyframe.pose_index, keyframe.stamp_ns
@@ -989,21 +984,4 @@ class RerunSink:
     def close(self) -> None:
         """Flush and disconnect; a recording file is renamed into place only if its run
         finished, so a failed run leaves an earlier recording as it was."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            self.rec.flush()
-            self.rec.disconnect()
-        except RuntimeError as exc:  # a viewer that went away: nothing more to send
-            logger.warning("rerun: %s", exc)
-        if self.temporary is None or self.target is None:
-            return
-        if self._finished:
-            os.replace(self.temporary, self.target)
-            logger.info("wrote recording %s", self.target)
-        else:
-            self.temporary.unlink(missing_ok=True)
-            logger.info("the run did not finish: no recording written to %s", self.target)
-        if self._discard_at_exit is not None:
-            self._discard_at_exit.detach()
+        self.destination.close(self._finished)

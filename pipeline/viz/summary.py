@@ -3,6 +3,7 @@ the run goes and completed with the metrics at the end. No Rerun here."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,4 +55,33 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
         "",
         f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
     ]
+    return "\n".join(lines)
+
+
+def comparison_markdown(results: Sequence[Any]) -> str:
+    """A table of several runs of one log (`pipeline.replay.ReplayResult`s), a row a method:
+    the error and the associations against ground truth where the log has it, landmarks,
+    time; what tells methods apart first (a narrow view cuts the last columns)."""
+    with_truth = any(r.metrics for r in results)
+    head, rule = "| method |", "|---|"
+    if with_truth:
+        head += " RMSE (m) | wrong | null |"
+        rule += "---|---|---|"
+    head += " landmarks |"
+    rule += "---|"
+    if with_truth:
+        head += " correct | max (m) |"
+        rule += "---|---|"
+    lines = [head + " back-end (s) |", rule + "---|"]
+    for r in results:
+        t = a = None
+        if r.metrics:
+            t, a = r.metrics["translation_error_m"], r.metrics["association"]
+        row = f"| **{r.method}** |"
+        if with_truth:
+            row += f" {t['rmse']:.3f} | {a['wrong']} | {a['null']} |" if t else " – | – | – |"
+        row += f" {r.num_landmarks} |"
+        if with_truth:
+            row += f" {a['correct']} | {t['max']:.3f} |" if t else " – | – |"
+        lines.append(row + f" {r.runtime_s:.1f} |")
     return "\n".join(lines)

@@ -1,0 +1,185 @@
+"""`mmslam compare`: each method's outputs in its own folder, and one recording of every run,
+read back with Rerun's own reader: each run under its own root on the shared pose timeline,
+its final estimate the one its folder holds, a map a method with its legend, a line a method
+in each plot, the table of results; the recording verified by `rerun rrd verify`; nothing
+written when a run fails; the same outputs whatever the number of worker processes."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.backend.methods import METHODS as ALL_METHODS
+from pipeline.cli import main
+from pipeline.compare import compare
+from pipeline.viz import entities as e
+from pipeline.viz.comparison import METHOD_COLOURS, SUMMARY, moved_path, run_root
+from pipeline.viz.draw import WRONG_RGB, packed_rgba
+from pipeline.viz.stream import rerun_executable
+from tests.recordings import (
+    blueprint,
+    containers,
+    data_rows,
+    latest,
+    read_rows,
+    unfed_views,
+    unseen_entities,
+)
+from tests.synthetic import Scene, square_loop, write_scene
+
+METHODS = ["known", "ml", "mm-nh"]
+
+
+def small_log(path: Path, truth_ids: bool = True) -> Path:
+    poses = square_loop(12.0, 1.0)
+    landmarks = np.array([[x, y, 0.5] for x in (-3.0, 6.0, 15.0) for y in (-3.0, 15.0)])
+    scene = Scene(poses, landmarks, np.arange(len(landmarks)) % 2)
+    return write_scene(path, scene, seed=2, odom_noise=3.0, truth_ids=truth_ids)
+
+
+@pytest.fixture(scope="module")
+def compared(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("compare")
+    log_path = small_log(tmp / "log.mcap")
+    results = compare(log_path, METHODS, tmp / "runs", rrd=tmp / "all.rrd", progress=False)
+    return tmp, results
+
+
+def tum_positions(path: Path) -> np.ndarray:
+    return np.loadtxt(path)[:, 1:4]
+
+
+def test_each_method_writes_what_replay_writes_in_its_own_folder(compared):
+    tmp, results = compared
+    assert [r.method for r in results] == METHODS
+    for result in results:
+        folder = tmp / "runs" / result.method
+        assert result.out_dir == folder
+        names = {p.name for p in folder.iterdir()}
+        assert {"trajectory.tum", "landmarks.csv", "associations.csv", "metrics.json"} <= names
+        assert json.loads((folder / "metrics.json").read_text())["method"] == result.method
+
+
+def test_every_run_is_under_its_own_root_on_the_same_timeline(compared):
+    tmp, results = compared
+    rows = read_rows(tmp / "all.rrd")
+    roots = {path.split("/")[2] for path in rows if path.startswith("/runs/")}
+    assert roots == set(METHODS)
+    outside = {p for p in rows if not p.startswith(("/runs/", "/__properties"))}
+    assert outside == {SUMMARY}
+    for result in results:
+        root = run_root(result.method)
+        # the final estimate drawn is the one the run's folder holds
+        estimate = latest(rows[root + e.TRAJECTORY], "LineStrips3D:strips")[0]
+        expected = tum_positions(result.out_dir / "trajectory.tum")
+        np.testing.assert_allclose(estimate, expected, atol=1e-5)
+        # the robot at every pose of the log's timeline
+        robot = data_rows(rows[root + e.ROBOT], "Transform3D:translation")
+        assert [r["pose"] for r in robot] == list(range(result.num_poses))
+        # its own legend in its map
+        assert latest(rows[root + e.LEGEND_MARKS], "Points3D:labels")
+        # the plotted lines named and coloured by method
+        rgb, _ = METHOD_COLOURS[result.method]
+        for path in (e.LANDMARK_COUNT, e.NULL_RATE, e.WRONG_COUNT, e.ERROR_ONLINE):
+            style = rows[root + path]  # static: the last one logged is the one shown
+            assert latest(style, "SeriesLines:names") == [result.method], path
+            assert latest(style, "SeriesLines:colors") == [int(packed_rgba(rgb))], path
+        # each run's description, a property of the comparison named after its method
+        assert rows[f"/__properties/{result.method}"][0]["method"] == [result.method]
+
+
+def test_the_maps_side_by_side_and_a_line_a_method_in_each_plot(compared):
+    tmp, _ = compared
+    rrd = tmp / "all.rrd"
+    views = blueprint(rrd)
+    maps = {v.id: v for v in views if v.kind == "3D"}
+    (row,) = [c for c in containers(rrd) if set(c) == set(maps)]  # side by side, in order
+    maps = [maps[i] for i in row]
+    assert [v.origin for v in maps] == [run_root(m) + e.WORLD for m in METHODS]
+    for view, method in zip(maps, METHODS, strict=True):
+        assert view.name.startswith(method)
+        assert view.shows(run_root(method) + e.LEGEND_MARKS)  # kept when maximised
+        assert not view.shows(run_root("ml" if method != "ml" else "known") + e.TRAJECTORY)
+    plots = [v for v in views if v.kind == "TimeSeries"]
+    # errors newest and final, wrong, landmarks, null rate, time, switches, merges
+    assert len(plots) == 8
+    for view in plots:
+        lines = [q.removeprefix("+ ") for q in view.query]
+        assert [line.split("/")[2] for line in lines] == METHODS
+        assert len({line.split("/", 3)[3] for line in lines}) == 1  # the same metric
+    assert unfed_views(rrd) == []
+    assert unseen_entities(rrd) == []
+
+
+def test_the_table_of_results(compared):
+    tmp, results = compared
+    (text,) = latest(read_rows(tmp / "all.rrd")[SUMMARY], "TextDocument:text")
+    rows = [line for line in text.splitlines() if line.startswith("| **")]
+    assert len(rows) == len(METHODS)
+    for row, result in zip(rows, results, strict=True):
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[0] == f"**{result.method}**"
+        rmse = result.metrics["translation_error_m"]["rmse"]
+        assert float(cells[1]) == pytest.approx(rmse, abs=5e-4)
+        association = result.metrics["association"]
+        assert [int(c) for c in cells[2:4]] == [association["wrong"], association["null"]]
+        assert int(cells[4]) == result.num_landmarks
+
+
+@pytest.mark.skipif(rerun_executable() is None, reason="no rerun executable")
+def test_rerun_verifies_the_recording(compared):
+    tmp, _ = compared
+    done = subprocess.run(
+        [rerun_executable(), "rrd", "verify", str(tmp / "all.rrd")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+
+
+def test_runs_in_worker_processes_give_the_same_outputs(tmp_path, compared):
+    tmp, _ = compared
+    compare(tmp / "log.mcap", ["ml", "mm-nh"], tmp_path / "runs", workers=2, progress=False)
+    for method in ("ml", "mm-nh"):
+        mine = (tmp_path / "runs" / method / "associations.csv").read_text()
+        assert mine == (tmp / "runs" / method / "associations.csv").read_text()
+
+
+def test_a_failed_run_writes_no_recording(tmp_path, capsys):
+    log_path = small_log(tmp_path / "log.mcap", truth_ids=False)
+    target = tmp_path / "all.rrd"
+    status = main(["compare", str(log_path), "--methods", "ml,known", "--out",
+                   str(tmp_path / "runs"), "--rrd", str(target)])  # fmt: skip
+    err = capsys.readouterr().err
+    assert status == 2 and "truth_landmark_id" in err and len(err.strip().splitlines()) == 1
+    assert not target.exists()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".all.rrd")]
+
+
+@pytest.mark.parametrize(
+    ("methods", "needle"), [("ml,ml", "twice"), ("ml,bogus", "expected methods"), (",", "expected")]
+)
+def test_bad_method_lists_are_usage_errors(tmp_path, capsys, methods, needle):
+    with pytest.raises(SystemExit) as info:
+        main(["compare", "x.mcap", "--methods", methods, "--out", str(tmp_path)])
+    assert info.value.code == 2
+    assert needle in capsys.readouterr().err
+
+
+def test_where_a_run_entity_goes():
+    assert moved_path("/world/robot", "ml") == "/runs/ml/world/robot"
+    assert moved_path("/", "mm-nh") == "/runs/mm-nh"  # the class colours, for its subtree
+    assert moved_path("/__properties/run", "ml") == "/__properties/ml"
+    assert moved_path("/__properties", "ml") is None  # the comparison names itself
+    assert moved_path(e.VIZ_MS, "ml") is None  # what recording cost: nothing of the method
+
+
+def test_every_method_has_a_colour_of_its_own_and_none_is_red():
+    assert set(METHOD_COLOURS) == set(ALL_METHODS)
+    colours = [rgb for rgb, _ in METHOD_COLOURS.values()]
+    names = [name for _, name in METHOD_COLOURS.values()]
+    assert len(set(colours)) == len(colours) and len(set(names)) == len(names)
+    assert WRONG_RGB not in colours

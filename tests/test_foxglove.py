@@ -285,3 +285,15 @@ def test_two_sinks_get_the_same_run(tmp_path):
     one, two = read_foxglove(first), read_foxglove(second)
     assert one.keys() == two.keys() and len(one[rf.POSE]) == read_log(log_path).num_poses
     assert all(a == b for topic in one for a, b in zip(one[topic], two[topic], strict=True))
+
+
+def test_the_last_event_says_what_the_log_could_measure():
+    errors = {"translation_error_m": {"rmse": 0.5, "max": 1.25}}
+    counts = {"association": {"correct": 7, "wrong": 1, "null": 2}}
+    assert rf.metrics_summary("ml", {"nulls": 2}) is None  # no ground truth at all
+    assert rf.metrics_summary("ml", errors) == "ml: translation error rmse 0.500 m, max 1.250 m"
+    assert rf.metrics_summary("ml", counts) == "ml: associations 7 correct, 1 wrong, 2 null"
+    both = rf.metrics_summary("ml", {**errors, **counts})
+    assert both == "ml: translation error rmse 0.500 m, max 1.250 m; " + (
+        "associations 7 correct, 1 wrong, 2 null"
+    )

@@ -195,11 +195,12 @@ def test_events_say_what_happened_at_which_level():
     assert events.started("mm-nh", 10, 4).text.startswith("pose 0: mm-nh over 10 poses")
 
 
-METRICS = {
+ERRORS = {
     "translation_error_m": {"max": 18.5775, "mean": 5.8395, "median": 4.8316, "rmse": 6.6027},
     "rotation_error_rad": {"max": 0.55706, "mean": 0.12761, "median": 0.02568, "rmse": 0.21609},
-    "association": {"correct": 686, "wrong": 8, "null": 13},
 }
+COUNTS_ONLY = {"nulls": 13, "solver_fallbacks": {"batch": 0, "qr": 0}, "runtime_s": 2.84}
+METRICS = {**COUNTS_ONLY, **ERRORS, "association": {"correct": 686, "wrong": 8, "null": 13}}
 
 
 def test_summary_while_running_and_at_the_end():
@@ -215,6 +216,10 @@ def test_summary_while_running_and_at_the_end():
     assert "| rotation (rad) | 0.5571 | 0.1276 | 0.0257 | 0.2161 |" in text
     assert text.endswith("Associations: 686 correct, 8 wrong, 13 null.")
     assert "error" not in summary_markdown(final)  # no ground truth: counts only
+    # metrics.json is always written: counts only, or errors without truth labels
+    assert "error" not in summary_markdown(final, COUNTS_ONLY)
+    poses_only = summary_markdown(final, {**COUNTS_ONLY, **ERRORS})
+    assert "| translation (m) | 18.578" in poses_only and "Associations" not in poses_only
 
 
 def test_the_table_of_a_comparison():
@@ -227,8 +232,15 @@ def test_the_table_of_a_comparison():
         "| **mm-nh** | – | – | – | 265 | – | – | 49.5 |",
     ]
     # without ground truth: what every run has
-    assert comparison_markdown([Run("ml", 9, 1.0, None)]).splitlines() == [
-        "| method | landmarks | back-end (s) |",
-        "|---|---|---|",
-        "| **ml** | 9 | 1.0 |",
+    for metrics in (None, COUNTS_ONLY):
+        assert comparison_markdown([Run("ml", 9, 1.0, metrics)]).splitlines() == [
+            "| method | landmarks | back-end (s) |",
+            "|---|---|---|",
+            "| **ml** | 9 | 1.0 |",
+        ]
+    # ground-truth poses, no truth labels: errors without association counts
+    assert comparison_markdown([Run("ml", 9, 1.0, {**COUNTS_ONLY, **ERRORS})]).splitlines() == [
+        "| method | RMSE (m) | landmarks | max (m) | back-end (s) |",
+        "|---|---|---|---|---|",
+        "| **ml** | 6.603 | 9 | 18.578 | 1.0 |",
     ]

@@ -170,14 +170,23 @@ class FoxgloveSink:
 
         for stamp, text, warning in self.events:
             out.append((stamp, EVENTS, fm.event(stamp, text, warning)))
-        if metrics is not None and "translation_error_m" in metrics:
-            t, a = metrics["translation_error_m"], metrics["association"]
-            summary = (
-                f"{self.method}: translation error rmse {t['rmse']:.3f} m, max {t['max']:.3f} m; "
-                f"associations {a['correct']} correct, {a['wrong']} wrong, {a['null']} null"
-            )
+        summary = metrics_summary(self.method, metrics or {})
+        if summary:
             out.append((stamps[-1], EVENTS, fm.event(stamps[-1], summary)))
         return out
 
     def close(self) -> None:
         pass
+
+
+def metrics_summary(method: str, metrics: dict) -> str | None:
+    """The last event's text: the error where the log has ground-truth poses, the association
+    counts where its detections carry truth labels; None with neither."""
+    parts = []
+    if "translation_error_m" in metrics:
+        t = metrics["translation_error_m"]
+        parts.append(f"translation error rmse {t['rmse']:.3f} m, max {t['max']:.3f} m")
+    if "association" in metrics:
+        a = metrics["association"]
+        parts.append(f"associations {a['correct']} correct, {a['wrong']} wrong, {a['null']} null")
+    return f"{method}: " + "; ".join(parts) if parts else None

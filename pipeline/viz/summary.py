@@ -43,7 +43,6 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
             lines += ["", f"Newest pose: {state.error_m:.2f} m from ground truth."]
         return "\n".join(lines)
     t, r = metrics["translation_error_m"], metrics["rotation_error_rad"]
-    a = metrics["association"]
     lines += [
         "",
         "| error | max | mean | median | RMSE |",
@@ -52,36 +51,50 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
         f"| {t['rmse']:.3f} |",
         f"| rotation (rad) | {r['max']:.4f} | {r['mean']:.4f} | {r['median']:.4f} "
         f"| {r['rmse']:.4f} |",
-        "",
-        f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
     ]
+    a = metrics.get("association")  # only where the log's detections carry truth labels
+    if a is not None:
+        lines += [
+            "",
+            f"Associations: {a['correct']} correct, {a['wrong']} wrong, {a['null']} null.",
+        ]
     return "\n".join(lines)
 
 
 def comparison_markdown(results: Sequence[Any]) -> str:
     """A table of several runs of one log (`pipeline.replay.ReplayResult`s), a row a method:
-    the error and the associations against ground truth where the log has it, landmarks,
-    time; what tells methods apart first (a narrow view cuts the last columns)."""
-    with_truth = any(r.metrics for r in results)
+    the error where the log has ground-truth poses, the associations where it has truth
+    labels, landmarks, time; what tells methods apart first (a narrow view cuts the last
+    columns). metrics.json holds the errors and the association counts only where the log
+    has what they are measured against."""
+
+    def of(r: Any, key: str) -> dict[str, Any] | None:
+        return (r.metrics or {}).get(key)
+
+    errors = any(of(r, "translation_error_m") for r in results)
+    associations = any(of(r, "association") for r in results)
     head, rule = "| method |", "|---|"
-    if with_truth:
-        head += " RMSE (m) | wrong | null |"
-        rule += "---|---|---|"
-    head += " landmarks |"
-    rule += "---|"
-    if with_truth:
-        head += " correct | max (m) |"
-        rule += "---|---|"
+    if errors:
+        head, rule = head + " RMSE (m) |", rule + "---|"
+    if associations:
+        head, rule = head + " wrong | null |", rule + "---|---|"
+    head, rule = head + " landmarks |", rule + "---|"
+    if associations:
+        head, rule = head + " correct |", rule + "---|"
+    if errors:
+        head, rule = head + " max (m) |", rule + "---|"
     lines = [head + " back-end (s) |", rule + "---|"]
     for r in results:
-        t = a = None
-        if r.metrics:
-            t, a = r.metrics["translation_error_m"], r.metrics["association"]
+        t, a = of(r, "translation_error_m"), of(r, "association")
         row = f"| **{r.method}** |"
-        if with_truth:
-            row += f" {t['rmse']:.3f} | {a['wrong']} | {a['null']} |" if t else " – | – | – |"
+        if errors:
+            row += f" {t['rmse']:.3f} |" if t else " – |"
+        if associations:
+            row += f" {a['wrong']} | {a['null']} |" if a else " – | – |"
         row += f" {r.num_landmarks} |"
-        if with_truth:
-            row += f" {a['correct']} | {t['max']:.3f} |" if t else " – | – |"
+        if associations:
+            row += f" {a['correct']} |" if a else " – |"
+        if errors:
+            row += f" {t['max']:.3f} |" if t else " – |"
         lines.append(row + f" {r.runtime_s:.1f} |")
     return "\n".join(lines)

@@ -110,6 +110,16 @@ def _all_sure(screened: list[_Screened], is_recent: Callable[[int], bool] | None
     return is_recent is None or all(is_recent(j) for j in ids)
 
 
+def covariance_bound(solver: Isam2Solver, landmarks: LandmarkMap, landmark_id: int) -> np.ndarray:
+    """The landmark's marginal covariance as last computed. It only shrinks as factors come in
+    (the map only gains information), so an old one bounds it from above; removing a factor
+    from the landmark forgets it (`Landmark.covariance_bound = None`)."""
+    landmark = landmarks.landmarks[landmark_id]
+    if landmark.covariance_bound is None:
+        landmark.covariance_bound = solver.marginal_covariance(L(landmark_id))
+    return landmark.covariance_bound
+
+
 def search_radius(
     prediction: PosePrediction,
     pose_covariance: np.ndarray,
@@ -209,15 +219,6 @@ class CandidateScorer:
             for m, s in zip(measurements, screened, strict=True)
         ]
 
-    def _landmark_covariance_bound(self, landmark_id: int) -> np.ndarray:
-        """The landmark's marginal covariance as last computed. It only shrinks as factors come
-        in, so an old one bounds it from above; removing a factor from the landmark forgets it
-        (`Landmark.covariance_bound = None`)."""
-        landmark = self.landmarks.landmarks[landmark_id]
-        if landmark.covariance_bound is None:
-            landmark.covariance_bound = self.solver.marginal_covariance(L(landmark_id))
-        return landmark.covariance_bound
-
     def _joints(
         self, prediction: PosePrediction, landmark_ids: list[int]
     ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -289,7 +290,7 @@ class CandidateScorer:
         # First, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma,
         # whatever the pose-landmark correlation, which bounds each Mahalanobis distance from
         # both sides. A landmark failing the gate under the larger R fails it for sure.
-        landmark_cov = np.stack([self._landmark_covariance_bound(j) for j in ids])
+        landmark_cov = np.stack([covariance_bound(self.solver, self.landmarks, j) for j in ids])
         landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
         bound = 2.0 * (pose_part + landmark_part) + m.covariance
         bound_d2 = assoc.mahalanobis_squared_batch(residual, bound)

@@ -16,6 +16,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
+from pipeline.backend.candidates import covariance_bound
 from pipeline.backend.decisions import MeasurementSpace, in_view
 from pipeline.backend.geometry import world_point_covariance
 from pipeline.backend.joint_compatibility import (
@@ -213,12 +214,8 @@ class MergeFinder:
         return world_point_covariance(R, latest.vector, latest.covariance)
 
     def bound(self, landmark_id: int) -> np.ndarray:
-        """The landmark's marginal covariance: an upper bound on it while no factor on it is
-        removed (the map only gains information), so cached until then."""
-        landmark = self.context.landmarks.landmarks[landmark_id]
-        if landmark.covariance_bound is None:
-            landmark.covariance_bound = self.context.solver.marginal_covariance(L(landmark_id))
-        return landmark.covariance_bound
+        """The landmark's marginal covariance, or an upper bound on it (`covariance_bound`)."""
+        return covariance_bound(self.context.solver, self.context.landmarks, landmark_id)
 
     def find(self, pose_index: int, odometry_scale: float = 1.0) -> list[tuple[int, int]]:
         """(duplicate, survivor) pairs to merge now. The map's covariance holds the odometry's

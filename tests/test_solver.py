@@ -145,6 +145,53 @@ def test_an_update_eliminates_its_landmarks_after_its_poses():
     np.testing.assert_allclose(solver.point(L(0)), [1.0, 2.0, 0.0], atol=1e-6)
 
 
+def odometry_alone_after_a_landmark(solver) -> None:
+    """A pose known to 10 m and a landmark seen from it at 0.3 m, then two updates of one
+    odometry step each (1 mm): in GTSAM's order the second eliminates the first step's pose
+    beside the newest in one clique, and that pose's pivot is its 10 m marginal against its
+    1 mm diagonal, (1e-3 / 10)^2 < 2^-24."""
+    wide = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-2] * 3 + [10.0] * 3))
+    solver.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), wide))
+    solver.insert(X(0), gtsam.Pose3())
+    bearing = gtsam.Unit3(np.array([1.0, 2.0, 0.0]))
+    seen = gtsam.noiseModel.Isotropic.Sigma(3, 0.3)
+    solver.add(gtsam.BearingRangeFactor3D(X(0), L(0), bearing, float(np.sqrt(5.0)), seen))
+    solver.insert(L(0), np.array([1.0, 2.0, 0.0]))
+    solver.update()
+    pose = gtsam.Pose3()
+    for k in (1, 2):
+        step = gtsam.BetweenFactorPose3(
+            X(k - 1), X(k), STEP, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)
+        )
+        solver.add(step)
+        pose = pose.compose(STEP)
+        solver.insert(X(k), pose)
+        solver.update()
+
+
+def test_an_odometry_update_eliminates_the_newest_landmark_last():
+    """With no landmark among its factors, GTSAM's order puts the new poses last and refuses;
+    the solver has iSAM2 eliminate the newest landmark again, last (`landmarks_last`'s root).
+    (Not unconditional: with odometry of 0.1 mm, 3,000 times finer than the landmark's 0.3 m,
+    the landmark last is refused too.)"""
+    config = load_config().isam2
+    default_order = Isam2Solver(config)
+    default_order._incremental = lambda: default_order.isam.update(
+        graph_of(default_order._pending.values()), default_order._values
+    )
+    odometry_alone_after_a_landmark(default_order)
+    assert [f.update for f in default_order.fallbacks][:1] == [2]  # refused at the second step
+    solver = Isam2Solver(config)
+    odometry_alone_after_a_landmark(solver)
+    assert solver.fallbacks == []
+    np.testing.assert_allclose(solver.pose(X(2)).translation(), [2.0, 0.0, 0.0], atol=1e-6)
+    groups = landmarks_last(graph_of([solver._committed[3]]), root=L(0))  # x1 -> x2's step
+    assert (groups.at(X(1)), groups.at(X(2)), groups.at(L(0))) == (1, 1, 2)
+    # a landmark without factors is no root: it would be eliminated with nothing on it
+    solver.remove(1)  # the sighting, the landmark's one factor
+    assert solver._landmark_factors[L(0)] == 0
+
+
 def test_an_update_cholesky_refuses_is_solved_again_in_batch_and_cholesky_kept():
     plain, flaky, handles = with_next_step_pending()
     flaky.isam = Refusing(flaky.isam)  # Cholesky refuses the next step in `flaky`

@@ -69,25 +69,39 @@ def fallback_counts(fallbacks: list[SolverFallback]) -> dict[str, int]:
     return {kind: counts[kind] for kind in FALLBACK_KINDS}
 
 
-def landmarks_last(graph: gtsam.NonlinearFactorGraph) -> gtsam.KeyGroupMap:
+def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -> gtsam.KeyGroupMap:
     """iSAM2's ordering of an update: the variables of its new factors last (GTSAM's default:
     they stay at the root, where the next update finds them), and among them the landmarks
-    after the poses.
+    after the poses; for an update without landmarks (odometry alone), `root` (a landmark the
+    caller has iSAM2 eliminate again) after its poses.
 
     The variable eliminated last keeps its marginal as its pivot. A pose's marginal grows with
     the drive (14 m across on a KITTI 05 run at noise x3) while its odometry pins it to
     millimetres: as the last, its pivot lost more than the 24 bits Cholesky allows, and a merge
-    re-pointing a landmark's detections from fifteen poses was refused. A landmark's marginal is
-    as wide, but its own measurements are centimetres, not millimetres, and the poses before it
-    are then eliminated given it: their pivots are their information relative to it."""
-    keys = graph.keyVector()
+    re-pointing a landmark's detections from fifteen poses was refused, and on another run an
+    update holding one odometry step. A landmark's marginal is as wide, but its own
+    measurements are centimetres, not millimetres, and the poses before it are then eliminated
+    given it: their pivots are their information relative to it."""
+    keys = list(graph.keyVector())
+    landmarks = [k for k in keys if not _is_pose_key(k)]
+    if not landmarks and root is not None:
+        keys.append(root)
     # CCOLAMD takes groups 0 .. n - 1 for n variables (those the update re-eliminates, at
     # least these): with two, the pose goes with the variables not constrained.
     first = 1 if len(keys) >= 3 else 0
     groups = gtsam.KeyGroupMap()
     for key in keys:
-        groups.insert2(key, first if gtsam.Symbol(key).chr() == ord("x") else first + 1)
+        groups.insert2(key, first if _is_pose_key(key) else first + 1)
     return groups
+
+
+def _is_pose_key(key: int) -> bool:
+    return gtsam.Symbol(key).chr() == ord("x")
+
+
+def _landmark_keys(factor: gtsam.NonlinearFactor) -> list[int]:
+    keys = factor.keys()  # a KeyVector, not a dict
+    return [k for k in keys if not _is_pose_key(k)]
 
 
 def relinearization_thresholds(
@@ -134,6 +148,10 @@ class Isam2Solver:
         self._values = gtsam.Values()
         self._removals: list[int] = []
         self._slots: dict[int, int] = {}
+        # Committed factors on each landmark, and the newest landmark an update has seen: the
+        # root an odometry-only update re-eliminates last (`landmarks_last`).
+        self._landmark_factors: Counter[int] = Counter()
+        self._root: int | None = None
         self._next_handle = 0
         self.num_updates = 0
         self.fallbacks: list[SolverFallback] = []  # in order
@@ -169,7 +187,7 @@ class Isam2Solver:
         """Take a factor out: a committed one at the next update, a pending one at once."""
         if self._pending.pop(handle, None) is None:
             self._removals.append(self._slots.pop(handle))
-            del self._committed[handle]
+            self._landmark_factors.subtract(_landmark_keys(self._committed.pop(handle)))
 
     @property
     def has_pending(self) -> bool:
@@ -202,13 +220,24 @@ class Isam2Solver:
             graph.add(factor)
         params = gtsam.ISAM2UpdateParams()
         params.removeFactorIndices = self._removals
-        params.constrainedKeys = landmarks_last(graph)
+        landmarks = {k for factor in self._pending.values() for k in _landmark_keys(factor)}
+        if landmarks:
+            self._root = max(landmarks)  # the newest
+        root = None
+        if not landmarks and self._root is not None and self._landmark_factors[self._root] > 0:
+            root = self._root
+            extra = gtsam.KeyList()
+            extra.push_back(root)
+            params.extraReelimKeys = extra
+        params.constrainedKeys = landmarks_last(graph, root)
         result = self.isam.update(graph, self._values, params)
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot
         return result
 
     def _clear_pending(self) -> None:
+        for factor in self._pending.values():
+            self._landmark_factors.update(_landmark_keys(factor))
         self._committed.update(self._pending)
         self._values = gtsam.Values()
         self._pending = {}

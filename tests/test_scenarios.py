@@ -511,7 +511,10 @@ def test_bad_arguments_are_input_errors(tmp_path, options, message):
         ("[route]\nspeed_mps = 'fast'\n", "route.speed_mps"),
         ("[camera]\ndetection_probability = 1.5\n", "detection_probability"),
         ("[odometry]\nbase_rotation_sigma_rad = [0.1, 0.1]\n", "base_rotation_sigma_rad"),
-        ("[odometry]\nbase_translation_sigma_m = [0.0, 0.1, 0.1]\n", "base sigmas"),
+        (
+            "[odometry]\nbase_translation_sigma_m = [0.0, 0.1, 0.1]\n",
+            r"'odometry\.base_translation_sigma_m\[0\]' must be in \(0, 100\], got 0\.0",
+        ),
         ("num_classes = [\n", "not valid TOML"),
         ("[tags]\ncount = 100000\n", "walls too short"),
         ("[route]\ncorner_smoothing_m = 12.0\n", "leaves the corridors"),

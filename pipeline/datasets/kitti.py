@@ -11,12 +11,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
 from pipeline.datasets.stereo import StereoSequence, pair_files, read_image
 from pipeline.errors import InputError
 from pipeline.log import StereoCalibration
+from pipeline.settings import positive, within
 
 # Columns: the camera's x (right), y (down) and z (forward) axes in the body frame.
 BODY_FROM_CAMERA_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -36,13 +38,13 @@ COLOUR_PAIR = ("image_2", "image_3", "P2", "P3")
 class StereoIntrinsics:
     """Rectified stereo: one pinhole for both cameras, and the baseline between them."""
 
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    baseline: float
+    width: Annotated[int, within(1, 2**15)]  # pixels
+    height: Annotated[int, within(1, 2**15)]
+    fx: Annotated[float, positive(1e5)]  # pixels
+    fy: Annotated[float, positive(1e5)]
+    cx: Annotated[float, within(-1e5, 1e5)]
+    cy: Annotated[float, within(-1e5, 1e5)]
+    baseline: Annotated[float, positive(100.0)]  # m
 
     @property
     def camera_matrix(self) -> np.ndarray:

@@ -14,7 +14,7 @@ import json
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
@@ -45,6 +45,13 @@ _ENCODERS = {
 }
 
 
+def mcap_writer(file: BinaryIO) -> Writer:
+    """An MCAP writer as every mmslam file is written: zstd chunks, and CRCs over the chunks,
+    the data section (`DataEnd`, which mcap's writer leaves at 0 unless asked) and the summary,
+    so that a flipped bit anywhere is refused on reading."""
+    return Writer(file, compression=CompressionType.ZSTD, enable_crcs=True, enable_data_crcs=True)
+
+
 class LogWriter:
     """Writes a log; use as a context manager. Messages go in the order they are written.
 
@@ -61,9 +68,7 @@ class LogWriter:
             raise self._refusal(f"metadata '{METADATA_NAME}': {exc}") from None
         self._validator = LogValidator(str(self.path), metadata)
         self._out = AtomicFile(self.path)
-        self._writer = Writer(
-            self._out.file, compression=CompressionType.ZSTD, enable_data_crcs=True
-        )
+        self._writer = mcap_writer(self._out.file)
         self._writer.start(profile="", library="mmslam")
         self._channels: dict[str, ChannelInfo] = {}
         self._counts: Counter[str] = Counter()

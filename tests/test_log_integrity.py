@@ -12,44 +12,25 @@ import struct
 import zlib
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from pipeline.cli import main
 from pipeline.log import read_log
 from pipeline.log.mcap_stream import MAGIC
-from tests.synthetic import Scene, square_loop, write_scene
-
-DATA_END = 0x0F
-
-
-def records(data: bytes) -> list[tuple[int, int, int]]:
-    """(offset, opcode, length with its 9-byte head) of each top-level record."""
-    found, offset = [], len(MAGIC)
-    while offset < len(data) - len(MAGIC):
-        length = 9 + struct.unpack_from("<Q", data, offset + 1)[0]
-        found.append((offset, data[offset], length))
-        offset += length
-    return found
-
-
-def data_end(data: bytes) -> int:
-    """The offset of the `DataEnd` record."""
-    return next(offset for offset, opcode, _ in records(data) if opcode == DATA_END)
+from tests.fuzz_logs import _data_end, _records_of
+from tests.synthetic import small_square_log
 
 
 def data_section_crc(data: bytes) -> tuple[int, int]:
     """The CRC `DataEnd` states, and the one of the bytes it covers (the magic to DataEnd)."""
-    end = data_end(data)
+    end = _data_end(data)
     (stated,) = struct.unpack_from("<I", data, end + 9)
     return stated, zlib.crc32(data[:end])
 
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory) -> Path:
-    landmarks = np.array([[5.0, 3.0, 0.0], [9.0, -3.0, 0.0], [3.0, 9.0, 0.0]])
-    scene = Scene(square_loop(6.0, 1.0, laps=0.5), landmarks, np.array([0, 1, 0]))
-    return write_scene(tmp_path_factory.mktemp("log") / "small.mcap", scene, seed=3)
+    return small_square_log(tmp_path_factory.mktemp("log") / "small.mcap")
 
 
 def inspect(path: Path) -> tuple[int, str]:
@@ -67,10 +48,10 @@ def test_our_writer_states_the_data_section_crc(small_log):
 
 def test_a_flipped_bit_anywhere_before_data_end_is_refused(tmp_path, small_log):
     data = small_log.read_bytes()
-    end = data_end(data) + 9 + 4  # through the DataEnd record itself
+    end = _data_end(data) + 9 + 4  # through the DataEnd record itself
     rng = random.Random(39)
     # every record's first bytes (opcodes, lengths), then bits drawn all over the section
-    offsets = {o + k for o, _, n in records(data) if o < end for k in range(min(n, 12))}
+    offsets = {o + k for o, _, n in _records_of(data) if o < end for k in range(min(n, 12))}
     offsets |= {rng.randrange(end) for _ in range(300)}
     offsets |= set(range(len(MAGIC)))
     flipped_log = tmp_path / "flipped.mcap"
@@ -88,7 +69,7 @@ def test_a_flipped_bit_anywhere_before_data_end_is_refused(tmp_path, small_log):
 
 def test_a_data_section_crc_that_does_not_match_is_named(tmp_path, small_log):
     data = bytearray(small_log.read_bytes())
-    end = data_end(bytes(data))
+    end = _data_end(bytes(data))
     struct.pack_into("<I", data, end + 9, data_section_crc(bytes(data))[0] ^ 1)
     bad = tmp_path / "bad-crc.mcap"
     bad.write_bytes(data)
@@ -100,7 +81,7 @@ def test_a_data_section_crc_that_does_not_match_is_named(tmp_path, small_log):
 def test_a_log_without_a_data_section_crc_reads_the_same(tmp_path, small_log):
     """A log written before (mcap's default writer leaves DataEnd's CRC at 0)."""
     data = bytearray(small_log.read_bytes())
-    struct.pack_into("<I", data, data_end(bytes(data)) + 9, 0)
+    struct.pack_into("<I", data, _data_end(bytes(data)) + 9, 0)
     legacy = tmp_path / "legacy.mcap"
     legacy.write_bytes(data)
     assert inspect(legacy)[0] == 0

@@ -44,8 +44,8 @@ from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     inverse,
     pose_from_rotation_translation,
+    quaternion_from_rotation,
     relative_poses,
-    rotation_to_quaternion,
     se3_exp,
 )
 from data_tools.scenarios.noise import (
@@ -323,7 +323,7 @@ def simulate(
     pose_noise = rng.standard_normal((len(tag_id), 6)) * pose_sigmas
     measured = bearing_elevation_range(relative[:, :3, 3]) + point_noise
     measured_pose = relative @ se3_exp(pose_noise)
-    measured_quaternion = rotation_to_quaternion(measured_pose[:, :3, :3])
+    measured_quaternion = quaternion_from_rotation(measured_pose[:, :3, :3])
 
     true_class = tag_id % num_classes
     confusion = confusion_matrix(num_classes, options.misclassification)

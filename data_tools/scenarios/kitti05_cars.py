@@ -54,9 +54,8 @@ from data_tools.scenarios.noise import (
     random_streams,
     sample_reported_classes,
 )
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.datasets.kitti import (
-    BODY_FROM_CAMERA,
-    StereoIntrinsics,
     camera_poses_to_body,
     read_poses,
     read_times,

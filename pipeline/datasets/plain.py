@@ -36,9 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.datasets.camera import StereoIntrinsics, check_intrinsics
 from pipeline.datasets.kitti import (
-    StereoIntrinsics,
-    check_intrinsics,
     read_poses,
     read_times,
 )
@@ -95,6 +94,23 @@ def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str
     return numbers, sequence
 
 
+def intrinsics_for_images(
+    path: Path, camera: dict[str, Any], width: int, height: int
+) -> StereoIntrinsics:
+    """The `[camera]` table of the plain calibration file `path`, for images of this size:
+    its width and height, where it gives them, must be the images'."""
+    for key, actual in (("width", width), ("height", height)):
+        if key in camera and int(camera[key]) != actual:
+            raise InputError(
+                f"calibration {path}: camera.{key} is {int(camera[key])} but the images are "
+                f"{actual}"
+            )
+    keys = ("fx", "fy", "cx", "cy", "baseline")
+    intrinsics = StereoIntrinsics(width, height, *(camera[key] for key in keys))
+    check_intrinsics(intrinsics, str(path))
+    return intrinsics
+
+
 class PlainSequence(StereoSequence):
     """A stereo sequence in the plain layout (see the module's description)."""
 
@@ -124,22 +140,7 @@ class PlainSequence(StereoSequence):
         first = read_image(self.left_files[0])
         self.colour = first.ndim == 3
         height, width = first.shape[:2]
-        for key, actual in (("width", width), ("height", height)):
-            if key in camera and int(camera[key]) != actual:
-                raise InputError(
-                    f"calibration {calibration}: camera.{key} is {int(camera[key])} but the "
-                    f"images are {actual}"
-                )
-        self.intrinsics = StereoIntrinsics(
-            width,
-            height,
-            camera["fx"],
-            camera["fy"],
-            camera["cx"],
-            camera["cy"],
-            camera["baseline"],
-        )
-        check_intrinsics(self.intrinsics, str(calibration))
+        self.intrinsics = intrinsics_for_images(calibration, camera, width, height)
         self.gt_poses = None
         poses_path = self.root / "poses.txt"
         if poses_path.exists():

@@ -13,6 +13,7 @@ from typing import Annotated, Literal, get_args
 
 from pipeline import settings
 from pipeline.errors import InputError
+from pipeline.frontend.model_files import resolve_model_path
 from pipeline.settings import FRACTION, UNIT, positive, within
 
 ImageFormat = Literal["jpeg", "png"]
@@ -136,8 +137,6 @@ class ObjectDetectorConfig:
 
     @property
     def model_path(self) -> Path:
-        from pipeline.frontend.objects import resolve_model_path
-
         return resolve_model_path(self.model)
 
     @property

@@ -34,6 +34,7 @@ import math
 import re
 import sys
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
@@ -71,7 +72,7 @@ FRACTION = within(0.0, 1.0, low_open=True)  # (0, 1]
 UNIT = within(0.0, 1.0)  # [0, 1]
 
 
-def _number_text(value: float) -> str:
+def number_text(value: float) -> str:
     """1000, 0.5, 1e6, 1e-6, 4294967295: as a person writes a bound, to the last digit."""
     text = f"{value:g}"
     if float(text) != value:
@@ -79,9 +80,17 @@ def _number_text(value: float) -> str:
     return text.replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
 
 
+def bare(info: mi.Type) -> mi.Type:
+    """The type itself, without the description or schema extras msgspec wraps it in."""
+    while isinstance(info, mi.Metadata):
+        info = info.type
+    return info
+
+
 def describe(info: mi.Type) -> str | None:
     """The range a declared type allows, as the configs' `# valid:` comments say it (None: a
     type without one, such as a bool or a free-form string)."""
+    info = bare(info)
     if isinstance(info, mi.LiteralType):
         return "one of " + ", ".join(str(v) for v in info.values)
     if isinstance(info, mi.VarTupleType | mi.ListType):
@@ -96,16 +105,17 @@ def describe(info: mi.Type) -> str | None:
     if low is not None and high is not None:
         opening = "(" if info.gt is not None else "["
         closing = ")" if info.lt is not None else "]"
-        return f"in {opening}{_number_text(low)}, {_number_text(high)}{closing}"
+        return f"in {opening}{number_text(low)}, {number_text(high)}{closing}"
     if low is not None:
-        return f"{'>' if info.gt is not None else '>='} {_number_text(low)}"
+        return f"{'>' if info.gt is not None else '>='} {number_text(low)}"
     if high is not None:
-        return f"{'<' if info.lt is not None else '<='} {_number_text(high)}"
+        return f"{'<' if info.lt is not None else '<='} {number_text(high)}"
     return None
 
 
 def holds(info: mi.Type, value: Any) -> bool:
     """Whether `value` (a number) is within the range of the declared type `info`."""
+    info = bare(info)
     if isinstance(info, mi.LiteralType):
         return value in info.values
     if not isinstance(info, mi.IntType | mi.FloatType):
@@ -237,6 +247,9 @@ def _walk(info: mi.Type, table: Any, steps: list[str | int]) -> tuple[mi.Type | 
     """The declared type and the value read at `steps` (None where the path leaves them)."""
     value: Any = table
     for step in steps:
+        info = bare(info)
+        if isinstance(info, mi.UnionType):  # an optional field: its type, not None
+            info = next(t for t in info.types if not isinstance(t, mi.NoneType))
         if isinstance(info, mi.DataclassType) and isinstance(step, str):
             info = next((f.type for f in info.fields if f.name == step), None)
         elif isinstance(info, mi.VarTupleType | mi.ListType):
@@ -251,6 +264,10 @@ def _walk(info: mi.Type, table: Any, steps: list[str | int]) -> tuple[mi.Type | 
             value = None
         if info is None:
             break
+    if info is not None:
+        info = bare(info)
+        if isinstance(info, mi.UnionType):
+            info = next(t for t in info.types if not isinstance(t, mi.NoneType))
     return info, value
 
 
@@ -264,32 +281,43 @@ _TYPE_WORDS = {
 }
 
 
-def explain(error: msgspec.ValidationError, cls: type, table: dict[str, Any]) -> str:
-    """One line for msgspec's error: the key's dotted path, its declared range or type, and
-    the value read."""
+def explain(
+    error: msgspec.ValidationError,
+    cls: type,
+    table: dict[str, Any],
+    noun: str = "key",
+    show: Callable[[Any], str] = repr,
+) -> str:
+    """One line for msgspec's error: the dotted path of the key (or a message's field), its
+    declared range or type, and the value read (as `show` shows it)."""
     text = str(error)
     match = _AT.match(text)
     what, steps = (match["what"], _steps(match["where"])) if match else (text, [])
     if what.startswith("Object missing required field"):
         name = what.split("`")[1]
-        return f"missing key '{_dotted([*steps, name])}'"
+        return f"missing {noun} '{_dotted([*steps, name])}'"
     key = _dotted(steps)
     info, value = _walk(mi.type_info(cls), table, steps)
     if isinstance(info, mi.TupleType) and isinstance(value, list):
         return f"'{key}' must hold {len(info.item_types)} values, got {len(value)}"
     if isinstance(info, mi.LiteralType):
-        return f"'{key}' must be {describe(info)}, got {value!r}"
+        return f"'{key}' must be {describe(info)}, got {show(value)}"
     number = isinstance(value, int | float) and not isinstance(value, bool)
     right_type = isinstance(info, mi.FloatType) or isinstance(value, int)
     if isinstance(info, mi.FloatType | mi.IntType) and number and right_type:
+        valid = describe(info)
         if isinstance(value, float) and not math.isfinite(value):
-            return f"'{key}' must be finite, {describe(info)}, got {value!r}"
-        return f"'{key}' must be {describe(info)}, got {value!r}"
+            if valid is None:
+                return f"'{key}' holds a non-finite number ({value})"
+            return f"'{key}' must be finite, {valid}, got {show(value)}"
+        if valid is not None:
+            return f"'{key}' must be {valid}, got {show(value)}"
+        return f"'{key}': {what[:1].lower()}{what[1:]}, got {show(value)}"
     if isinstance(info, mi.VarTupleType | mi.ListType | mi.TupleType):
-        return f"'{key}' must be an array, got {value!r}"
+        return f"'{key}' must be an array, got {show(value)}"
     word = _TYPE_WORDS.get(type(info))
     if word is not None:
-        return f"'{key}' must be {word}, got {value!r}"
+        return f"'{key}' must be {word}, got {show(value)}"
     return f"'{key}': {what}"
 
 

@@ -169,20 +169,21 @@ def config_path(relative: str) -> Path:
     return path if path.exists() else INSTALLED_CONFIG_DIR / relative
 
 
-def read_toml(path: Path) -> dict[str, Any]:
+def read_toml(path: Path, what: str = "config") -> dict[str, Any]:
+    """A TOML file's tables; any problem an `InputError` naming the file as `what` it is."""
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)
     except FileNotFoundError:
-        raise InputError(f"config {path}: no such file") from None
+        raise InputError(f"{what} {path}: no such file") from None
     except IsADirectoryError:
-        raise InputError(f"config {path}: is a directory") from None
+        raise InputError(f"{what} {path}: is a directory") from None
     except OSError as exc:
-        raise InputError(f"config {path}: cannot be read ({exc.strerror})") from None
+        raise InputError(f"{what} {path}: cannot be read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"config {path}: not valid TOML ({exc})") from None
+        raise InputError(f"{what} {path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError:
-        raise InputError(f"config {path}: not UTF-8 text") from None
+        raise InputError(f"{what} {path}: not UTF-8 text") from None
 
 
 def require(condition: bool, path: Path | str, message: str) -> None:

@@ -30,7 +30,6 @@ The reader has the same face as `KittiSequence`: `len`, `[i]` -> (left, right) g
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +42,7 @@ from pipeline.datasets.kitti import (
 )
 from pipeline.datasets.stereo import StereoSequence, pair_files, read_image
 from pipeline.errors import InputError
+from pipeline.settings import read_toml
 
 CALIBRATION_FILE = "calibration.toml"
 CAMERA_KEYS = ("fx", "fy", "cx", "cy", "baseline")
@@ -58,15 +58,7 @@ def _number(table: dict[str, Any], key: str, path: Path, where: str) -> float:
 def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str, Any]]:
     """The `[camera]` numbers and the `[sequence]` settings of a calibration.toml."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            document = tomllib.load(f)
-    except OSError as exc:
-        raise InputError(f"calibration {path}: cannot read ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"calibration {path}: not valid TOML ({exc})") from None
-    except UnicodeDecodeError:
-        raise InputError(f"calibration {path}: not UTF-8 text") from None
+    document = read_toml(path, "calibration")
     camera = document.get("camera")
     if not isinstance(camera, dict):
         raise InputError(f"calibration {path}: needs a [camera] table")

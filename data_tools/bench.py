@@ -1,6 +1,8 @@
 """`make bench`: speed and memory figures, printed; nothing here asserts anything about time.
 
-Parts (all by default, or `--only backend,mixture,viz,frontend`):
+Parts (all by default, or `--only read,backend,mixture,viz,frontend`):
+- read: `read_log` (the container, every message decoded and checked) on a 50,000-pose log
+  (`simulate indoor-tags` chained, as `memory` makes it): best of three, wall and CPU time.
 - backend: known, ml, mm, mm-nh and dcsam on a `simulate kitti05-cars` log (2,761 poses, ~10,000
   detections) and on a long aliased city-grid log (`--long-poses`, 10,000 by default): wall
   and CPU time, ratio to known (CPU: the machine may be shared), to the log's real duration,
@@ -191,10 +193,26 @@ def bench_mixture(out: Path) -> None:
     print("(x known column: relative to between-updates)")
 
 
+def bench_read(out: Path, poses: int = 50_000, repeats: int = 3) -> None:
+    """Reading (and checking) a long log: the best of a few reads, wall and CPU time."""
+    from data_tools.bench_memory import long_log
+    from pipeline.log import read_log
+
+    path = long_log(out, poses)
+    walls, cpus = [], []
+    for _ in range(repeats):
+        start, cpu = time.perf_counter(), time.process_time()
+        log = read_log(path)
+        walls.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - cpu)
+    print(f"\n== reading {path} ({log.num_poses} poses, {log.num_detections} detections)")
+    print(f"read_log, best of {repeats}: {min(walls):.2f} s wall, {min(cpus):.2f} s CPU")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
-    parser.add_argument("--only", default="backend,mixture,viz,frontend")
+    parser.add_argument("--only", default="read,backend,mixture,viz,frontend")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument(
         "--long-poses", type=int, default=10000, help="poses of the long log (default 10,000)"
@@ -213,6 +231,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     args.out.mkdir(parents=True, exist_ok=True)
     parts = set(args.only.split(","))
+    if "read" in parts:
+        bench_read(args.out)
     if "backend" in parts:
         bench_backend(args.out, tuple(args.methods.split(",")), args.long_poses)
     if "mixture" in parts:

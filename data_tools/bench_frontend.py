@@ -46,7 +46,8 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from pipeline.datasets.kitti import KittiSequence, StereoIntrinsics, camera_poses_to_body  # noqa: E402
+from pipeline.datasets.camera import StereoIntrinsics  # noqa: E402
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body  # noqa: E402
 from pipeline.datasets.stereo import read_grey  # noqa: E402
 from pipeline.frontend import geometry as g  # noqa: E402
 from pipeline.frontend.apriltags import (  # noqa: E402

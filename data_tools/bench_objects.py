@@ -40,8 +40,8 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from pipeline.datasets.camera import StereoIntrinsics  # noqa: E402
 from pipeline.datasets.kitti import (  # noqa: E402
-    StereoIntrinsics,
     read_calibration,
     read_calibration_rows,
 )

@@ -26,13 +26,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
 from pipeline import settings
 from pipeline.errors import InputError
 from pipeline.log import Detection, Detections, LogMetadata, LogWriter, Odometry
-from pipeline.settings import POSITIVE, setting
+from pipeline.settings import positive
 
 STEP_TAGS = ("ODOMETRY", "EDGE2")
 SKIPPED_TAGS = ("VERTEX2", "VERTEX_SE2", "VERTEX_XY")
@@ -40,9 +41,9 @@ SKIPPED_TAGS = ("VERTEX2", "VERTEX_SE2", "VERTEX_XY")
 
 @dataclass(frozen=True)
 class Landmarks2dConfig:
-    keyframe_period_s: float = setting(POSITIVE)
-    flat_sigma: float = setting(POSITIVE)
-    elevation_sigma_rad: float = setting(POSITIVE)
+    keyframe_period_s: Annotated[float, positive(3600.0)]
+    flat_sigma: Annotated[float, positive(1.0)]  # m and rad
+    elevation_sigma_rad: Annotated[float, positive(3.2)]
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ import tarfile
 import tempfile
 from pathlib import Path
 
-from pipeline.frontend.objects import DEFAULT_MODEL, MODELS_ENV, models_dir
+from pipeline.frontend.model_files import MODELS_ENV, models_dir
+from pipeline.frontend.objects import DEFAULT_MODEL
 
 log = logging.getLogger(__name__)
 

@@ -22,9 +22,8 @@ from data_tools.renderer.layout import build_scene, motion_from_config
 from data_tools.renderer.output import visible_landmarks, write_landmarks, write_visibility
 from data_tools.renderer.path import body_poses
 from data_tools.renderer.raycast import PinholeCamera, SceneRenderer
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.datasets.kitti import (
-    BODY_FROM_CAMERA,
-    StereoIntrinsics,
     write_calibration,
     write_poses,
     write_times,

@@ -1,145 +1,153 @@
 """Typed configuration: defaults in configs/default.toml, overridden by a user's TOML file.
 
-Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load;
-`load_config` checks what spans keys.
+Each setting's type and valid range are declared beside it (`pipeline/settings.py`) and
+checked at load; `load_config` checks what spans keys.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal, get_args
 
 from pipeline import settings
-from pipeline.settings import (
-    ANY,
-    FRACTION,
-    POSITIVE,
-    PROBABILITY,
-    at_least,
-    between,
-    one_of,
-    setting,
-)
+from pipeline.settings import FRACTION, PROBABILITY, UNIT, positive, within
 
-MIXTURE_SELECTIONS = ("between-updates", "custom-factor")
-FIRST_CHOICES = ("joint", "prediction", "weights")
-NULL_MODELS = ("relative", "literal")
-PLANAR_MODES = ("auto", "always", "never")
+MixtureSelection = Literal["between-updates", "custom-factor"]
+FirstChoice = Literal["joint", "prediction", "weights"]
+NullModel = Literal["relative", "literal"]
+PlanarMode = Literal["auto", "always", "never"]
+MIXTURE_SELECTIONS = get_args(MixtureSelection)
+FIRST_CHOICES = get_args(FirstChoice)
+NULL_MODELS = get_args(NullModel)
+PLANAR_MODES = get_args(PlanarMode)
+
+Probability = Annotated[float, PROBABILITY]
+LogOdds = Annotated[float, within(0.0, 1000.0)]  # nats
+Sigmas = Annotated[float, within(0.0, 1000.0)]  # standard deviations
+Scale = Annotated[float, positive(1e6)]  # a variance scale
+Keyframes = Annotated[int, within(1, 10**6)]
+SearchNodes = Annotated[int, within(1, 10**7)]
+Rounds = Annotated[int, within(1, 1000)]
+Metres = Annotated[float, within(0.0, 1e6)]
+Sigma = Annotated[float, positive(1e6)]  # a standard deviation, m or rad
 
 
 @dataclass(frozen=True)
 class AssociationConfig:
-    chi2_confidence: float = setting(PROBABILITY)
-    null_weight: float = setting(PROBABILITY)
-    null_model: str = setting(one_of(*NULL_MODELS))
-    null_sigma: float = setting(POSITIVE)
-    null_crossover_sq: float = setting(POSITIVE)
-    joint_candidate_confidence: float = setting(PROBABILITY)
-    joint_confidence: float = setting(PROBABILITY)
-    ambiguity_log_odds: float = setting(at_least(0.0))
-    max_search_nodes: int = setting(at_least(1))
-    min_loop_pairs: int = setting(at_least(1))
-    crowded_loop_pairs: int = setting(at_least(1))
+    chi2_confidence: Probability
+    null_weight: Probability
+    null_model: NullModel
+    null_sigma: Annotated[float, positive(1e9)]
+    null_crossover_sq: Annotated[float, positive(1e6)]
+    joint_candidate_confidence: Probability
+    joint_confidence: Probability
+    ambiguity_log_odds: LogOdds
+    max_search_nodes: SearchNodes
+    min_loop_pairs: Rounds
+    crowded_loop_pairs: Rounds
     joint_marginals: bool
-    min_weight: float = setting(between(0.0, 1.0, high_open=True))
-    search_sigmas: float = setting(at_least(0.0))
-    search_margin_m: float = setting(at_least(0.0))
-    max_candidates: int = setting(at_least(1))
+    min_weight: Annotated[float, within(0.0, 1.0, high_open=True)]
+    search_sigmas: Sigmas
+    search_margin_m: Metres
+    max_candidates: Rounds
 
 
 @dataclass(frozen=True)
 class LandmarkConfig:
     use_relative_pose: bool
-    anchor_sigma_m: float = setting(POSITIVE)
+    anchor_sigma_m: Annotated[float, positive(1e9)]
 
 
 @dataclass(frozen=True)
 class GpdaConfig:
-    max_iterations: int = setting(at_least(1))
-    weight_tolerance: float = setting(between(0.0, 1.0))
+    max_iterations: Rounds
+    weight_tolerance: Annotated[float, UNIT]
 
 
 @dataclass(frozen=True)
 class MixtureConfig:
-    selection: str = setting(one_of(*MIXTURE_SELECTIONS))
-    first_choice: str = setting(one_of(*FIRST_CHOICES))
-    max_switch_rounds: int = setting(at_least(1))
+    selection: MixtureSelection
+    first_choice: FirstChoice
+    max_switch_rounds: Rounds
 
 
 @dataclass(frozen=True)
 class MergeConfig:
     enabled: bool
-    every_keyframes: int = setting(at_least(1))
-    recent_keyframes: int = setting(at_least(1))
-    confidence: float = setting(PROBABILITY)
-    local_confidence: float = setting(PROBABILITY)
-    search_sigmas: float = setting(POSITIVE)
-    min_class_agreement: float = setting(between(0.0, 1.0))
-    prior_log_odds: float = setting(ANY)  # any finite number: negative favours a new landmark
-    loop_log_odds: float = setting(at_least(0.0))
-    local_log_odds: float = setting(at_least(0.0))
-    ambiguity_log_odds: float = setting(at_least(0.0))
-    max_search_nodes: int = setting(at_least(1))
-    search_seeds: int = setting(at_least(0))
+    every_keyframes: Keyframes
+    recent_keyframes: Keyframes
+    confidence: Probability
+    local_confidence: Probability
+    search_sigmas: Annotated[float, positive(1000.0)]
+    min_class_agreement: Annotated[float, UNIT]
+    # any finite number: negative favours a new landmark
+    prior_log_odds: Annotated[float, within(-1000.0, 1000.0)]
+    loop_log_odds: LogOdds
+    local_log_odds: LogOdds
+    ambiguity_log_odds: LogOdds
+    max_search_nodes: SearchNodes
+    search_seeds: Annotated[int, within(0, 10**4)]
     partner_prior: bool
     local_rivals: bool
     local_detection_noise: bool
-    max_partners: int = setting(at_least(1))
-    max_landmarks: int = setting(at_least(2))
-    drift_scale_weight: float = setting(between(0.0, 1.0))
-    max_drift_scale: float = setting(at_least(1.0))
-    drift_scale_steps: int = setting(at_least(1))
+    max_partners: Rounds
+    max_landmarks: Annotated[int, within(2, 10**5)]
+    drift_scale_weight: Annotated[float, UNIT]
+    max_drift_scale: Annotated[float, within(1.0, 1e6)]
+    drift_scale_steps: Rounds
 
 
 @dataclass(frozen=True)
 class NoiseConfig:
     estimate: bool
-    odometry_scale: float = setting(POSITIVE)
-    odometry_start_scale: float = setting(POSITIVE)
-    measurement_scale: tuple[float, float, float] = setting(POSITIVE)
-    update_every: int = setting(at_least(1))
-    sample_every: int = setting(at_least(1))
-    window: int = setting(at_least(1))
-    min_pairings: int = setting(at_least(1))
-    min_scale: float = setting(FRACTION)
-    max_scale: float = setting(at_least(1.0))
-    max_step: float = setting(at_least(1.0))
-    drift_window: int = setting(at_least(1))
-    long_drift_window: int = setting(at_least(0))
-    drift_windows: int = setting(at_least(1))
-    min_drift_windows: int = setting(at_least(1))
-    drift_deadband: float = setting(at_least(1.0))
-    drift_evidence: float = setting(at_least(0.0))
+    odometry_scale: Scale
+    odometry_start_scale: Scale
+    measurement_scale: tuple[Scale, Scale, Scale]
+    update_every: Keyframes
+    sample_every: Keyframes
+    window: Annotated[int, within(1, 10**7)]  # pairings kept
+    min_pairings: Annotated[int, within(1, 10**7)]
+    min_scale: Annotated[float, FRACTION]
+    max_scale: Annotated[float, within(1.0, 1e6)]
+    max_step: Annotated[float, within(1.0, 1e6)]
+    drift_window: Keyframes
+    long_drift_window: Annotated[int, within(0, 10**6)]
+    drift_windows: Keyframes
+    min_drift_windows: Keyframes
+    drift_deadband: Annotated[float, within(1.0, 1e6)]
+    drift_evidence: Annotated[float, within(0.0, 1e6)]
 
 
 @dataclass(frozen=True)
 class Isam2Config:
-    relinearize_threshold: float = setting(at_least(0.0))
+    relinearize_threshold: Metres
     per_type_thresholds: bool
-    pose_rotation_threshold_rad: float = setting(at_least(0.0))
-    pose_translation_threshold_m: float = setting(at_least(0.0))
-    landmark_threshold_m: float = setting(at_least(0.0))
+    pose_rotation_threshold_rad: Annotated[float, within(0.0, 10.0)]
+    pose_translation_threshold_m: Metres
+    landmark_threshold_m: Metres
     partial_relinearization_check: bool
-    wildfire_threshold: float = setting(at_least(0.0))
-    relinearize_skip: int = setting(at_least(1))
-    factorization: str = setting(one_of("CHOLESKY", "QR"))
-    batch_iterations: int = setting(at_least(0))
+    wildfire_threshold: Metres
+    relinearize_skip: Keyframes  # GTSAM takes a C int
+    factorization: Literal["CHOLESKY", "QR"]
+    batch_iterations: Annotated[int, within(0, 10**5)]
 
 
 @dataclass(frozen=True)
 class DcsamConfig:
-    new_landmark_weight: float = setting(PROBABILITY)
-    max_alternations: int = setting(at_least(1))
-    exact_class_variables: int = setting(at_least(0))
+    new_landmark_weight: Probability
+    max_alternations: Rounds
+    # landmarks a group may hold for the exact step (its cost grows exponentially with them)
+    exact_class_variables: Annotated[int, within(0, 64)]
 
 
 @dataclass(frozen=True)
 class PriorConfig:
-    pose0_sigma_rotation: float = setting(POSITIVE)
-    pose0_sigma_translation: float = setting(POSITIVE)
-    planar: str = setting(one_of(*PLANAR_MODES))
-    planar_height_sigma_m: float = setting(POSITIVE)
-    planar_tilt_sigma_rad: float = setting(POSITIVE)
+    pose0_sigma_rotation: Sigma
+    pose0_sigma_translation: Sigma
+    planar: PlanarMode
+    planar_height_sigma_m: Sigma
+    planar_tilt_sigma_rad: Sigma
 
 
 @dataclass(frozen=True)

@@ -125,6 +125,14 @@ def adjoint(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return out
 
 
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Points given in the frames of 4x4 poses `T` to the parent frame (broadcasting: one pose
+    and many points, or one point for each pose)."""
+    T = np.asarray(T, dtype=float)
+    points = np.asarray(points, dtype=float)
+    return np.einsum("...ij,...j->...i", T[..., :3, :3], points) + T[..., :3, 3]
+
+
 def rotation_from_quaternion(q: np.ndarray) -> np.ndarray:
     """[x, y, z, w] (normalised first) to rotation matrices."""
     q = np.asarray(q, dtype=float)

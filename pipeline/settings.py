@@ -1,33 +1,46 @@
 """TOML files into typed frozen dataclasses: the one loader every configuration uses.
 
+A config section is declared once, as a frozen dataclass whose fields carry their type and
+valid range (both ends) in the annotation; msgspec decodes a TOML table into it and checks it:
+
+    relinearize_skip: Annotated[int, within(1, 10**6)]
+    selection: Literal["between-updates", "custom-factor"]
+
+and the file says the same (`configs/default.toml`):
+
+    relinearize_skip = 1  # valid: in [1, 1e6]
+    selection = "between-updates"  # valid: one of between-updates, custom-factor
+
 Defaults live in `configs/` (or `<prefix>/share/mmslam/configs/` for a non-editable install);
 a user's file needs only the keys it changes. Unknown keys, missing keys, wrong types and
-values outside a key's valid range are `InputError`s naming the key and the file. Supported
-field types: `int`, `float` (finite), `bool`, `str`, `Path` (resolved against the directory
-of the file that sets it), fixed or variable tuples of those, nested dataclasses, tuples of
-dataclasses (arrays of tables), and `dict` (a free-form table, such as a name mapping, that its
-owner checks; a user's file replaces it whole).
+values outside a key's range are one-line `InputError`s naming the file, the key and the
+range. The `# valid: ...` comment on a key's line in `configs/` says the range the declaration
+holds (tests/test_settings.py holds them equal). Checks between keys stay with the owner.
 
-A number or word field declares its valid range beside its type, and the config file says the
-same in a `# valid: ...` comment on the key's line (tests/test_settings.py holds them equal):
-
-    relinearize_skip: int = setting(at_least(1))          # relinearize_skip = 1  # valid: >= 1
-    selection: str = setting(one_of("a", "b"))            # selection = "a"  # valid: one of a, b
-
-A tuple's range holds for each of its items. Checks between keys stay with the config's owner.
+Why msgspec rather than pydantic v2: both validate nested typed trees and name the failing
+path. msgspec decodes plain dataclasses with `Annotated[..., Meta(...)]` constraints (the
+configs stay frozen dataclasses, so `dataclasses.replace` and their `repr`, which the sweeps'
+fingerprints hash, do not change), it is a single small C extension with no dependencies, and
+it is several times faster than pydantic at decoding JSON into typed objects, which the log
+reader does for every message of a log (`python -m data_tools.bench`). Its errors say
+"Expected `int` <= 1000 - at `$.isam2.relinearize_skip`"; this module turns them into the
+house's one line, with the declared range and the value read.
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import math
+import re
 import sys
 import tomllib
-import typing
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
+
+import msgspec
+import msgspec.inspect as mi
+from msgspec import Meta
 
 from pipeline.errors import InputError
 
@@ -35,75 +48,118 @@ CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 INSTALLED_CONFIG_DIR = Path(sys.prefix) / "share" / "mmslam" / "configs"
 
 T = TypeVar("T")
-VALID = "valid"  # the dataclass field metadata key of a range
+# The widest integer a setting may hold: a C `int` (what GTSAM and OpenCV take).
+INT_MAX = 2**31 - 1
 
 
-@dataclass(frozen=True)
-class Valid:
-    """A setting's valid range: numbers in an interval (ends open or closed, either may be
-    missing), or one of some words; no bound at all means anything of the field's type."""
-
-    low: float | None = None
-    high: float | None = None
-    low_open: bool = False
-    high_open: bool = False
-    choices: tuple[str, ...] = ()
-
-    def holds(self, value: Any) -> bool:
-        if self.choices:
-            return value in self.choices
-        if self.low is not None and (value <= self.low if self.low_open else value < self.low):
-            return False
-        return self.high is None or (value < self.high if self.high_open else value <= self.high)
-
-    def describe(self) -> str:
-        if self.choices:
-            return "one of " + ", ".join(self.choices)
-        low, high = self.low, self.high
-        if low is not None and high is not None:
-            opening = "(" if self.low_open else "["
-            closing = ")" if self.high_open else "]"
-            return f"in {opening}{low:g}, {high:g}{closing}"
-        if low is not None:
-            return f"{'>' if self.low_open else '>='} {low:g}"
-        if high is not None:
-            return f"{'<' if self.high_open else '<='} {high:g}"
-        return "any"
+def within(low: float, high: float, *, low_open: bool = False, high_open: bool = False) -> Meta:
+    """A number's range, both ends given: `[low, high]`, either end open if asked."""
+    return Meta(
+        gt=low if low_open else None,
+        ge=None if low_open else low,
+        lt=high if high_open else None,
+        le=None if high_open else high,
+    )
 
 
-ANY = Valid()
-POSITIVE = Valid(low=0.0, low_open=True)
-FRACTION = Valid(low=0.0, high=1.0, low_open=True)  # (0, 1]
-PROBABILITY = Valid(low=0.0, high=1.0, low_open=True, high_open=True)  # (0, 1)
+def positive(high: float) -> Meta:
+    """`(0, high]`: a scale, a sigma, a length."""
+    return within(0.0, high, low_open=True)
 
 
-def at_least(low: float) -> Valid:
-    return Valid(low=low)
+PROBABILITY = within(0.0, 1.0, low_open=True, high_open=True)  # (0, 1)
+FRACTION = within(0.0, 1.0, low_open=True)  # (0, 1]
+UNIT = within(0.0, 1.0)  # [0, 1]
 
 
-def between(low: float, high: float, *, low_open: bool = False, high_open: bool = False) -> Valid:
-    return Valid(low=low, high=high, low_open=low_open, high_open=high_open)
+def number_text(value: float) -> str:
+    """1000, 0.5, 1e6, 1e-6, 4294967295: as a person writes a bound, to the last digit."""
+    text = f"{value:g}"
+    if float(text) != value:
+        text = repr(value)
+    return text.replace("e+0", "e").replace("e+", "e").replace("e-0", "e-")
 
 
-def one_of(*choices: str) -> Valid:
-    return Valid(choices=choices)
+def bare(info: mi.Type) -> mi.Type:
+    """The type itself, without the description or schema extras msgspec wraps it in."""
+    while isinstance(info, mi.Metadata):
+        info = info.type
+    return info
 
 
-def setting(valid: Valid) -> Any:
-    """A dataclass field with a valid range (and no default: defaults live in `configs/`)."""
-    return dataclasses.field(metadata={VALID: valid})
+def describe(info: mi.Type) -> str | None:
+    """The range a declared type allows, as the configs' `# valid:` comments say it (None: a
+    type without one, such as a bool or a free-form string)."""
+    info = bare(info)
+    if isinstance(info, mi.LiteralType):
+        return "one of " + ", ".join(str(v) for v in info.values)
+    if isinstance(info, mi.VarTupleType | mi.ListType):
+        return describe(info.item_type)
+    if isinstance(info, mi.TupleType):
+        ranges = {describe(item) for item in info.item_types}
+        return ranges.pop() if len(ranges) == 1 else None
+    if not isinstance(info, mi.IntType | mi.FloatType):
+        return None
+    low = info.gt if info.gt is not None else info.ge
+    high = info.lt if info.lt is not None else info.le
+    if low is not None and high is not None:
+        opening = "(" if info.gt is not None else "["
+        closing = ")" if info.lt is not None else "]"
+        return f"in {opening}{number_text(low)}, {number_text(high)}{closing}"
+    if low is not None:
+        return f"{'>' if info.gt is not None else '>='} {number_text(low)}"
+    if high is not None:
+        return f"{'<' if info.lt is not None else '<='} {number_text(high)}"
+    return None
 
 
-def valid_range(cls: type, name: str) -> Valid | None:
-    """The range declared for field `name` of dataclass `cls`, if any."""
-    field = next(f for f in dataclasses.fields(cls) if f.name == name)
-    return field.metadata.get(VALID)
+def holds(info: mi.Type, value: Any) -> bool:
+    """Whether `value` (a number) is within the range of the declared type `info`."""
+    info = bare(info)
+    if isinstance(info, mi.LiteralType):
+        return value in info.values
+    if not isinstance(info, mi.IntType | mi.FloatType):
+        return True
+    if isinstance(value, float) and not math.isfinite(value):
+        return False
+    return not (
+        (info.gt is not None and value <= info.gt)
+        or (info.ge is not None and value < info.ge)
+        or (info.lt is not None and value >= info.lt)
+        or (info.le is not None and value > info.le)
+    )
 
 
-def check_range(value: Any, valid: Valid, path: Path | str, key: str) -> None:
-    """Raise `InputError` naming the file and the key unless `value` is within `valid`."""
-    if not valid.holds(value):
-        raise InputError(f"config {path}: '{key}' must be {valid.describe()}, got {value!r}")
+def number_type(kind: type, meta: Meta) -> mi.Type:
+    """The inspected type of `Annotated[kind, meta]`: a range to check a value against by hand
+    (`check_range`) where a file's keys are not a dataclass of their own."""
+    return mi.type_info(Annotated[kind, meta])
+
+
+def check_range(value: Any, info: mi.Type, path: Path | str, key: str) -> None:
+    """Raise `InputError` naming the file and the key unless `value` is within `info`."""
+    if not holds(info, value):
+        raise InputError(f"config {path}: '{key}' must be {describe(info)}, got {value!r}")
+
+
+def fields_of(cls: type) -> dict[str, mi.Type]:
+    """The declared fields of config dataclass `cls`: name -> inspected type."""
+    info = mi.type_info(cls)
+    return {f.name: f.type for f in info.fields}
+
+
+def leaves(cls: type, prefix: str = "") -> dict[str, mi.Type]:
+    """Every setting of a config dataclass, nested sections (and arrays of tables) flattened:
+    dotted key -> type."""
+    found = {}
+    for name, info in fields_of(cls).items():
+        if isinstance(info, mi.VarTupleType) and isinstance(info.item_type, mi.DataclassType):
+            info = info.item_type  # [[vehicles]]: each table's keys as `vehicles.name`
+        if isinstance(info, mi.DataclassType):
+            found.update(leaves(info.cls, f"{prefix}{name}."))
+        else:
+            found[prefix + name] = info
+    return found
 
 
 def config_path(relative: str) -> Path:
@@ -113,20 +169,21 @@ def config_path(relative: str) -> Path:
     return path if path.exists() else INSTALLED_CONFIG_DIR / relative
 
 
-def read_toml(path: Path) -> dict[str, Any]:
+def read_toml(path: Path, what: str = "config") -> dict[str, Any]:
+    """A TOML file's tables; any problem an `InputError` naming the file as `what` it is."""
     try:
         with open(path, "rb") as f:
             return tomllib.load(f)
     except FileNotFoundError:
-        raise InputError(f"config {path}: no such file") from None
+        raise InputError(f"{what} {path}: no such file") from None
     except IsADirectoryError:
-        raise InputError(f"config {path}: is a directory") from None
+        raise InputError(f"{what} {path}: is a directory") from None
     except OSError as exc:
-        raise InputError(f"config {path}: cannot be read ({exc.strerror})") from None
+        raise InputError(f"{what} {path}: cannot be read ({exc.strerror})") from None
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"config {path}: not valid TOML ({exc})") from None
+        raise InputError(f"{what} {path}: not valid TOML ({exc})") from None
     except UnicodeDecodeError:
-        raise InputError(f"config {path}: not UTF-8 text") from None
+        raise InputError(f"{what} {path}: not UTF-8 text") from None
 
 
 def require(condition: bool, path: Path | str, message: str) -> None:
@@ -135,113 +192,153 @@ def require(condition: bool, path: Path | str, message: str) -> None:
         raise InputError(f"config {path}: {message}")
 
 
-def _is_dataclass_type(kind: Any) -> bool:
-    return isinstance(kind, type) and dataclasses.is_dataclass(kind)
+def _refuse_unknown(table: dict[str, Any], info: mi.Type, path: Path, prefix: str) -> None:
+    """msgspec passes over keys a dataclass does not have: refuse them here, by their path."""
+    if isinstance(info, mi.DataclassType):
+        names = {f.name: f.type for f in info.fields}
+        for key, value in table.items():
+            if key not in names:
+                raise InputError(f"config {path}: unknown key '{prefix}{key}'")
+            if isinstance(value, dict):
+                _refuse_unknown(value, names[key], path, f"{prefix}{key}.")
+            elif isinstance(value, list):
+                item = names[key]
+                if isinstance(item, mi.VarTupleType | mi.ListType):
+                    for i, entry in enumerate(value):
+                        if isinstance(entry, dict):
+                            _refuse_unknown(entry, item.item_type, path, f"{prefix}{key}[{i}].")
 
 
-def _field_types(cls: type) -> dict[str, Any]:
-    hints = typing.get_type_hints(cls)
-    return {f.name: hints[f.name] for f in dataclasses.fields(cls)}
-
-
-def _resolve_paths(table: dict[str, Any], cls: type, base: Path) -> None:
-    """Make the `Path` fields of `table` absolute, relative to `base` (in place)."""
-    for name, kind in _field_types(cls).items():
-        value = table.get(name)
-        if kind is Path and isinstance(value, str):
-            table[name] = str((base / value).resolve())
-        elif _is_dataclass_type(kind) and isinstance(value, dict):
-            _resolve_paths(value, kind, base)
-
-
-def merge(base: dict[str, Any], override: dict[str, Any], cls: type, path: Path, prefix="") -> None:
+def merge(base: dict[str, Any], override: dict[str, Any], cls: type, path: Path) -> None:
     """Put the keys of `override` over `base` (in place), refusing keys `cls` does not have."""
-    types = _field_types(cls)
+    _refuse_unknown(override, mi.type_info(cls), path, "")
+    _merge(base, override, mi.type_info(cls), path, "")
+
+
+def _merge(
+    base: dict[str, Any], override: dict[str, Any], info: mi.Type, path: Path, prefix: str
+) -> None:
+    names = {f.name: f.type for f in info.fields}
     for key, value in override.items():
-        if key not in types:
-            raise InputError(f"config {path}: unknown key '{prefix}{key}'")
-        kind = types[key]
-        if _is_dataclass_type(kind) and isinstance(base.get(key), dict):
+        kind = names[key]
+        if isinstance(kind, mi.DataclassType) and isinstance(base.get(key), dict):
             if not isinstance(value, dict):
                 raise InputError(f"config {path}: '{prefix}{key}' must be a table")
-            merge(base[key], value, kind, path, f"{prefix}{key}.")
+            _merge(base[key], value, kind, path, f"{prefix}{key}.")
         else:
             base[key] = value  # arrays and free-form tables (`dict` fields) are replaced whole
 
 
-def _scalar(value: Any, kind: type, path: Path, key: str) -> Any:
-    if kind is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        if ok and not math.isfinite(value):
-            raise InputError(f"config {path}: '{key}' must be finite, got {value!r}")
-    elif kind is int:
-        ok = isinstance(value, int) and not isinstance(value, bool)
-    elif kind is Path:
-        ok = isinstance(value, str)
-    else:
-        ok = isinstance(value, kind)
-    if not ok:
-        raise InputError(f"config {path}: '{key}' must be {kind.__name__}, got {value!r}")
-    return kind(value)
+_AT = re.compile(r"^(?P<what>.*) - at `\$(?P<where>[^`]*)`$")
+_STEP = re.compile(r"\.([A-Za-z0-9_-]+)|\[(\d+)\]")
 
 
-def _value(value: Any, kind: Any, path: Path, key: str) -> Any:
-    if _is_dataclass_type(kind):
-        if not isinstance(value, dict):
-            raise InputError(f"config {path}: '{key}' must be a table")
-        return build(kind, value, path, f"{key}.")
-    if kind is dict:
-        if not isinstance(value, dict):
-            raise InputError(f"config {path}: '{key}' must be a table")
-        return dict(value)
-    if typing.get_origin(kind) is tuple:
-        args = typing.get_args(kind)
-        if not isinstance(value, list):
-            raise InputError(f"config {path}: '{key}' must be an array")
-        if len(args) == 2 and args[1] is Ellipsis:
-            item_kinds = [args[0]] * len(value)
+def _steps(where: str) -> list[str | int]:
+    return [name if name else int(index) for name, index in _STEP.findall(where)]
+
+
+def _dotted(steps: list[str | int]) -> str:
+    text = ""
+    for step in steps:
+        text += f"[{step}]" if isinstance(step, int) else (f".{step}" if text else step)
+    return text
+
+
+def _walk(info: mi.Type, table: Any, steps: list[str | int]) -> tuple[mi.Type | None, Any]:
+    """The declared type and the value read at `steps` (None where the path leaves them)."""
+    value: Any = table
+    for step in steps:
+        info = bare(info)
+        if isinstance(info, mi.UnionType):  # an optional field: its type, not None
+            info = next(t for t in info.types if not isinstance(t, mi.NoneType))
+        if isinstance(info, mi.DataclassType) and isinstance(step, str):
+            info = next((f.type for f in info.fields if f.name == step), None)
+        elif isinstance(info, mi.VarTupleType | mi.ListType):
+            info = info.item_type
+        elif isinstance(info, mi.TupleType) and isinstance(step, int):
+            info = info.item_types[step] if step < len(info.item_types) else None
         else:
-            item_kinds = list(args)
-            if len(value) != len(item_kinds):
-                raise InputError(
-                    f"config {path}: '{key}' must hold {len(item_kinds)} values, got {len(value)}"
-                )
-        return tuple(
-            _value(v, k, path, f"{key}[{i}]")
-            for i, (v, k) in enumerate(zip(value, item_kinds, strict=True))
-        )
-    return _scalar(value, kind, path, key)
+            info = None
+        try:
+            value = value[step]
+        except (KeyError, IndexError, TypeError):
+            value = None
+        if info is None:
+            break
+    if info is not None:
+        info = bare(info)
+        if isinstance(info, mi.UnionType):
+            info = next(t for t in info.types if not isinstance(t, mi.NoneType))
+    return info, value
 
 
-def build(cls: type[T], table: dict[str, Any], path: Path, prefix: str = "") -> T:
-    """A config dataclass from a TOML table, checked key by key."""
-    types = _field_types(cls)
-    for key in table:
-        if key not in types:
-            raise InputError(f"config {path}: unknown key '{prefix}{key}'")
-    kwargs = {}
-    for name, kind in types.items():
-        if name not in table:
-            raise InputError(f"config {path}: missing key '{prefix}{name}'")
-        value = _value(table[name], kind, path, f"{prefix}{name}")
-        valid = valid_range(cls, name)
+_TYPE_WORDS = {
+    mi.IntType: "int",
+    mi.FloatType: "float",
+    mi.BoolType: "bool",
+    mi.StrType: "str",
+    mi.DictType: "a table",
+    mi.DataclassType: "a table",
+}
+
+
+def explain(
+    error: msgspec.ValidationError,
+    cls: type,
+    table: dict[str, Any],
+    noun: str = "key",
+    show: Callable[[Any], str] = repr,
+) -> str:
+    """One line for msgspec's error: the dotted path of the key (or a message's field), its
+    declared range or type, and the value read (as `show` shows it)."""
+    text = str(error)
+    match = _AT.match(text)
+    what, steps = (match["what"], _steps(match["where"])) if match else (text, [])
+    if what.startswith("Object missing required field"):
+        name = what.split("`")[1]
+        return f"missing {noun} '{_dotted([*steps, name])}'"
+    key = _dotted(steps)
+    info, value = _walk(mi.type_info(cls), table, steps)
+    if isinstance(info, mi.TupleType) and isinstance(value, list):
+        return f"'{key}' must hold {len(info.item_types)} values, got {len(value)}"
+    if isinstance(info, mi.LiteralType):
+        return f"'{key}' must be {describe(info)}, got {show(value)}"
+    number = isinstance(value, int | float) and not isinstance(value, bool)
+    right_type = isinstance(info, mi.FloatType) or isinstance(value, int)
+    if isinstance(info, mi.FloatType | mi.IntType) and number and right_type:
+        valid = describe(info)
+        if isinstance(value, float) and not math.isfinite(value):
+            if valid is None:
+                return f"'{key}' holds a non-finite number ({value})"
+            return f"'{key}' must be finite, {valid}, got {show(value)}"
         if valid is not None:
-            items = value if isinstance(value, tuple) else (value,)
-            for i, item in enumerate(items):
-                key = f"{prefix}{name}" + (f"[{i}]" if isinstance(value, tuple) else "")
-                check_range(item, valid, path, key)
-        kwargs[name] = value
-    return cls(**kwargs)
+            return f"'{key}' must be {valid}, got {show(value)}"
+        return f"'{key}': {what[:1].lower()}{what[1:]}, got {show(value)}"
+    if isinstance(info, mi.VarTupleType | mi.ListType | mi.TupleType):
+        return f"'{key}' must be an array, got {show(value)}"
+    word = _TYPE_WORDS.get(type(info))
+    if word is not None:
+        return f"'{key}' must be {word}, got {show(value)}"
+    return f"'{key}': {what}"
+
+
+def build(cls: type[T], table: dict[str, Any], path: Path | str, prefix: str = "") -> T:
+    """A config dataclass from a TOML table, checked key by key."""
+    _refuse_unknown(table, mi.type_info(cls), Path(path), prefix)
+    try:
+        return msgspec.convert(table, cls, strict=True)
+    except msgspec.ValidationError as error:
+        line = explain(error, cls, table)
+        if prefix and line.startswith(("'", "missing key '")):
+            line = line.replace("'", f"'{prefix}", 1)
+        raise InputError(f"config {path}: {line}") from None
 
 
 def load(cls: type[T], default: Path, override: str | Path | None = None) -> T:
     """`default` as `cls`, with the keys of `override` (if given) put over them."""
     table = read_toml(default)
-    _resolve_paths(table, cls, default.parent)
     source = default
     if override is not None:
         source = Path(override)
-        user = copy.deepcopy(read_toml(source))
-        _resolve_paths(user, cls, source.parent)
-        merge(table, user, cls, source)
+        merge(table, copy.deepcopy(read_toml(source)), cls, source)
     return build(cls, table, source)

@@ -186,3 +186,11 @@ def kidnap_scene(alias_seen_before: bool, shift: float = KIDNAP_SHIFT_M) -> tupl
         odometry_overrides={KIDNAP_POSE: (straight, sigmas)},
     )
     return scene, 0, 1
+
+
+def small_square_log(path: Path) -> Path:
+    """Half a lap of a 6 m square past three landmarks of two classes: a log of a few
+    keyframes, for tests of files rather than of the estimate."""
+    landmarks = np.array([[5.0, 3.0, 0.0], [9.0, -3.0, 0.0], [3.0, 9.0, 0.0]])
+    scene = Scene(square_loop(6.0, 1.0, laps=0.5), landmarks, np.array([0, 1, 0]))
+    return write_scene(path, scene, seed=3)

@@ -22,7 +22,7 @@ from data_tools.bench_frontend import (
     tag_recall,
     tags_on_images,
 )
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.frontend import geometry as g
 from pipeline.frontend.apriltags import (
     LIBAPRILTAG_PIXEL_OFFSET,

@@ -130,7 +130,17 @@ def test_known_without_truth_ids_exits_2(tmp_path, capsys, earlier_run):
             "[association]\nchi2_confidence = 1.5\n",
             "'association.chi2_confidence' must be in (0, 1)",
         ),
-        ("[isam2]\nrelinearize_skip = 0\n", "'isam2.relinearize_skip' must be >= 1, got 0"),
+        ("[isam2]\nrelinearize_skip = 0\n", "'isam2.relinearize_skip' must be in [1, 1e6], got 0"),
+        # hostile values (issue 39): GTSAM's C int overflowed, and a deque's length
+        (
+            "[isam2]\nrelinearize_skip = 4294967297\n",
+            "'isam2.relinearize_skip' must be in [1, 1e6], got 4294967297",
+        ),
+        (
+            "[noise]\nwindow = 99999999999999999999\n",
+            "'noise.window' must be in [1, 1e7], got 99999999999999999999",
+        ),
+        ("[noise]\nwindow = 2.5\n", "'noise.window' must be int, got 2.5"),
         ("[association]\nnull_wieght = 0.2\n", "unknown key 'association.null_wieght'"),
         ("[isam2]\nrelinearize_skip = 'often'\n", "'isam2.relinearize_skip' must be int"),
         ("[association\n", "not valid TOML"),
@@ -153,6 +163,38 @@ def test_bad_config_exits_2(tmp_path, capsys, good_log, earlier_run, content, ne
     )
     assert_one_line_error(status, err, str(config), needle)
     assert snapshot(out) == before
+
+
+@pytest.mark.parametrize(
+    "content,needle",
+    [
+        (
+            "[route]\nlength_m = 1e12\n",
+            "'route.length_m' must be in (0, 100000], got 1000000000000.0",
+        ),
+        ("[route]\nspeed_mps = 0\n", "'route.speed_mps' must be in (0, 100], got 0"),
+        ("[route]\nkeyframe_period_s = -1.0\n", "'route.keyframe_period_s' must be in (0, 3600]"),
+        ("[route]\nspeed_mps = 1e-9\n", "must be <= 1000000 keyframes, got 1.08e+12"),
+        ("[tags]\ncount = 1e3\n", "'tags.count' must be int, got 1000.0"),
+        ("[odometry]\nadded_sigma_x_m = nan\n", "'odometry.added_sigma_x_m' must be finite"),
+        (
+            "[floor]\ncorridor_x_m = [0.0, 1e300]\n",
+            "'floor.corridor_x_m[1]' must be in [-100000, 100000]",
+        ),
+    ],
+)
+def test_hostile_scenario_values_exit_2_and_keep_the_old_log(tmp_path, capsys, content, needle):
+    """The issue's `simulate` with `[route] length_m = 1e12` ran unbounded, and "route values
+    > 0" named neither key nor value."""
+    out = tmp_path / "old.mcap"
+    out.write_bytes(b"an earlier log")
+    config = tmp_path / "hostile.toml"
+    config.write_text(content)
+    status, _, err = run_cli(
+        capsys, "simulate", "indoor-tags", "--out", str(out), "--config", str(config)
+    )
+    assert_one_line_error(status, err, str(config), needle)
+    assert out.read_bytes() == b"an earlier log"
 
 
 @pytest.mark.e2e

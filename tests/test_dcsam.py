@@ -525,5 +525,5 @@ def test_a_bad_dcsam_setting_is_one_line_and_exit_2(tmp_path, capsys):
     )
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1 and "Traceback" not in err
-    assert "'dcsam.max_alternations' must be >= 1, got 0" in err
+    assert "'dcsam.max_alternations' must be in [1, 1000], got 0" in err
     assert not (tmp_path / "o").exists()

@@ -26,6 +26,7 @@ from pipeline.log import Detection, read_log
 from pipeline.replay import replay
 from pipeline.viz import TeeSink, sink_from_options
 from tests.synthetic import kidnap_scene, write_scene
+from tests.test_log_integrity import data_section_crc
 
 CONTRACT_TOPICS = {
     "/odometry",
@@ -237,6 +238,8 @@ def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
     paper = load_config(settings.config_path("paper.toml"))  # a null win, then a switch
     result = replay(log_path, "mm-nh", tmp_path / "run", paper, sink=sink, progress=False)
     fox = read_foxglove(estimate)
+    stated, computed = data_section_crc(estimate.read_bytes())
+    assert stated == computed != 0  # every byte of it protected, as the logs' are
     log = read_log(log_path)
     stamps = log.pose_stamps_ns()
 

@@ -7,7 +7,7 @@ import gtsam
 import numpy as np
 import pytest
 
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.frontend import geometry as g
 from tests.numerics import numerical_jacobian
 

@@ -20,7 +20,8 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, KittiSequence, camera_poses_to_body
+from pipeline.datasets.camera import BODY_FROM_CAMERA
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
 from pipeline.datasets.plain import PlainSequence
 from pipeline.errors import InputError
 from pipeline.frontend import geometry as g

@@ -14,13 +14,11 @@ import pytest
 
 from data_tools.data import KITTI05_DIR
 from data_tools.scenarios.geometry import se3_exp
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics, check_intrinsics
 from pipeline.datasets.kitti import (
-    BODY_FROM_CAMERA,
     KittiSequence,
-    StereoIntrinsics,
     body_poses_to_camera,
     camera_poses_to_body,
-    check_intrinsics,
     read_calibration,
     read_poses,
     read_times,

@@ -169,7 +169,7 @@ BAD_MESSAGES = {
             + b"]}",
             10,
         ),
-        "/odometry message 0: 'translation' holds a non-finite number",
+        "/odometry message 0: 'translation[0]' holds a non-finite number (inf)",
     ),
     "covariance not positive definite": (
         _with(

@@ -9,6 +9,7 @@ import os
 import pytest
 
 from data_tools import models
+from pipeline.frontend import model_files
 from pipeline.frontend import objects as ob
 from pipeline.frontend.config import load_frontend_config
 
@@ -22,9 +23,9 @@ def no_downloads(monkeypatch):
 
 
 def test_paths_follow_the_environment(monkeypatch, tmp_path):
-    monkeypatch.setenv(ob.MODELS_ENV, str(tmp_path))
+    monkeypatch.setenv(model_files.MODELS_ENV, str(tmp_path))
     assert models.model_path() == tmp_path / "yolov3-tiny.onnx"
-    monkeypatch.delenv(ob.MODELS_ENV)
+    monkeypatch.delenv(model_files.MODELS_ENV)
     assert models.model_path().parent.parts[-3:] == ("share", "mmslam", "models")
 
 

@@ -18,8 +18,9 @@ from data_tools.bench_objects import (
     lidar_in_left_camera,
     object_frame,
 )
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.errors import InputError
+from pipeline.frontend import model_files
 from pipeline.frontend import objects as ob
 from pipeline.frontend.config import load_frontend_config
 from tests import real_data
@@ -355,9 +356,9 @@ def test_object_config_keys_are_checked(tmp_path):
 
 
 def test_models_directory_follows_the_environment(monkeypatch, tmp_path):
-    monkeypatch.setenv(ob.MODELS_ENV, str(tmp_path))
+    monkeypatch.setenv(model_files.MODELS_ENV, str(tmp_path))
     assert default_objects().model_path == tmp_path / ob.DEFAULT_MODEL
-    assert ob.resolve_model_path("/elsewhere/m.onnx") == Path("/elsewhere/m.onnx")
+    assert model_files.resolve_model_path("/elsewhere/m.onnx") == Path("/elsewhere/m.onnx")
 
 
 # --- the detector on the tiny model ----------------------------------------------------------
@@ -484,7 +485,7 @@ def test_lidar_projects_onto_the_object_frame():
 def test_cars_of_the_object_frame_are_found_once_each_at_their_lidar_range():
     # About 9 vehicles in view. Measured at the configured threshold (0.3): 7 boxes, the rear of
     # the hatchback merged into it, ranges 0.9-4.4 % beyond the LiDAR's.
-    installed(ob.resolve_model_path(ob.DEFAULT_MODEL))
+    installed(model_files.resolve_model_path(ob.DEFAULT_MODEL))
     config = default_objects()
     cars = cars_on_object_frame(config)
     for a, b in itertools.permutations(cars, 2):

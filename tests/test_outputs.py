@@ -11,13 +11,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from pipeline import outputs, provenance
 from pipeline.cli import main
 from pipeline.errors import InputError
-from tests.synthetic import Scene, square_loop, write_scene
+from tests.synthetic import small_square_log
 
 ROOT = Path(__file__).resolve().parents[1]
 # Runs `mmslam` and SIGKILLs itself when the write reaches step N (counting from 1).
@@ -37,9 +36,7 @@ sys.exit(main(sys.argv[2:]))
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory) -> Path:
-    landmarks = np.array([[5.0, 3.0, 0.0], [9.0, -3.0, 0.0], [3.0, 9.0, 0.0]])
-    scene = Scene(square_loop(6.0, 1.0, laps=0.5), landmarks, np.array([0, 1, 0]))
-    return write_scene(tmp_path_factory.mktemp("log") / "small.mcap", scene, seed=3)
+    return small_square_log(tmp_path_factory.mktemp("log") / "small.mcap")
 
 
 def output_set(folder: Path) -> dict[str, object]:

@@ -19,7 +19,6 @@ from data_tools.renderer.geometry import (
     pixel_ray_coordinates,
     project_points,
     ray_plane_depth,
-    transform_points,
 )
 from data_tools.renderer.layout import (
     block_walls,
@@ -30,8 +29,10 @@ from data_tools.renderer.layout import (
 from data_tools.renderer.path import body_poses
 from data_tools.renderer.raycast import PinholeCamera, SceneRenderer, sample_texture
 from data_tools.renderer.scene import Scene, Tag, Texture, facing_surface, tag_surface
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, KittiSequence, camera_poses_to_body
+from pipeline.datasets.camera import BODY_FROM_CAMERA
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
 from pipeline.errors import InputError
+from pipeline.geometry import transform_points
 
 CAMERA = PinholeCamera(613, 185, 353.5456, 353.5456, 300.6937, 91.3052, supersample=2)
 BASELINE = 0.5372

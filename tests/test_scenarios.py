@@ -19,7 +19,7 @@ import pytest
 
 from data_tools.data import KITTI05_DIR
 from data_tools.scenarios import SCENARIOS, indoor_tags, simulate
-from data_tools.scenarios.geometry import rotation_to_quaternion, se3_exp
+from data_tools.scenarios.geometry import quaternion_from_rotation, se3_exp
 from data_tools.scenarios.noise import confusion_matrix, sample_reported_classes
 from pipeline.errors import InputError
 from pipeline.log import read_log
@@ -511,7 +511,10 @@ def test_bad_arguments_are_input_errors(tmp_path, options, message):
         ("[route]\nspeed_mps = 'fast'\n", "route.speed_mps"),
         ("[camera]\ndetection_probability = 1.5\n", "detection_probability"),
         ("[odometry]\nbase_rotation_sigma_rad = [0.1, 0.1]\n", "base_rotation_sigma_rad"),
-        ("[odometry]\nbase_translation_sigma_m = [0.0, 0.1, 0.1]\n", "base sigmas"),
+        (
+            "[odometry]\nbase_translation_sigma_m = [0.0, 0.1, 0.1]\n",
+            r"'odometry\.base_translation_sigma_m\[0\]' must be in \(0, 100\], got 0\.0",
+        ),
         ("num_classes = [\n", "not valid TOML"),
         ("[tags]\ncount = 100000\n", "walls too short"),
         ("[route]\ncorner_smoothing_m = 12.0\n", "leaves the corridors"),
@@ -542,7 +545,7 @@ def test_se3_exp_and_quaternions_agree_with_gtsam():
     rng = np.random.default_rng(0)
     xi = np.concatenate([rng.normal(0, 1.0, (50, 6)), rng.normal(0, 1e-7, (50, 6))])
     ours = se3_exp(xi)
-    quats = rotation_to_quaternion(ours[:, :3, :3])
+    quats = quaternion_from_rotation(ours[:, :3, :3])
     for k in range(len(xi)):
         theirs = gtsam.Pose3.Expmap(xi[k])
         np.testing.assert_allclose(ours[k], theirs.matrix(), atol=1e-12)

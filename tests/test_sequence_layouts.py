@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 
 from pipeline.cli import main
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.datasets.euroc import EurocSequence
-from pipeline.datasets.kitti import KittiSequence, StereoIntrinsics
+from pipeline.datasets.kitti import KittiSequence
 from pipeline.datasets.layouts import open_sequence
 from pipeline.datasets.pairing import pair_stamps
 from pipeline.datasets.rectification import CameraModel, Rectification, stereo_rectification

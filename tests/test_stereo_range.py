@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from data_tools.bench_objects import TEDDY, teddy_grid
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend import geometry as g
 from pipeline.frontend import stereo_range as sr

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from data_tools.bench_frontend import REAL_CLIP, odometry_figures
-from pipeline.datasets.kitti import KittiSequence, StereoIntrinsics, camera_poses_to_body
+from pipeline.datasets.camera import StereoIntrinsics
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
 from pipeline.frontend import geometry as g
 from pipeline.frontend.config import load_frontend_config
 from pipeline.frontend.stereo_vo import (

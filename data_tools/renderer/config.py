@@ -1,88 +1,97 @@
 """Renderer presets: `configs/renderer/<name>.toml` loaded into frozen dataclasses.
 
-Every key must be present, of the right type and within its valid range (declared beside it,
-checked at load); the meaning of each is commented in the preset files.
+Every key must be present, of the right type and within its valid range (declared beside
+it, checked at load); the meaning of each is commented in the preset files.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal, get_args
 
 from pipeline import settings
 from pipeline.errors import InputError
-from pipeline.settings import ANY, POSITIVE, at_least, between, one_of, setting
+from pipeline.settings import positive, within
 
 PRESET_DIR = settings.CONFIG_DIR / "renderer"
 INSTALLED_PRESET_DIR = settings.INSTALLED_CONFIG_DIR / "renderer"
 
-STYLES = ("street", "corridor")
-OBJECT_STYLES = ("car", "crate")
+SceneStyle = Literal["street", "corridor"]
+ObjectStyle = Literal["car", "crate"]
+STYLES = get_args(SceneStyle)
+OBJECT_STYLES = get_args(ObjectStyle)
+Pixels = Annotated[int, within(1, 8192)]
+Focal = Annotated[float, positive(1e5)]  # pixels
+Metres = Annotated[float, positive(1e4)]
+Offset = Annotated[float, within(-1e4, 1e4)]  # m, either side
+Gap = Annotated[float, within(0.0, 1e4)]  # m
+Texels = Annotated[float, positive(1e4)]  # per metre
 
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int = setting(at_least(1))
-    height: int = setting(at_least(1))
-    fx: float = setting(POSITIVE)
-    fy: float = setting(POSITIVE)
-    cx: float = setting(ANY)
-    cy: float = setting(ANY)
-    baseline: float = setting(POSITIVE)
-    frame_rate: float = setting(POSITIVE)
-    supersample: int = setting(between(1, 4))
-    noise_sigma: float = setting(at_least(0.0))
+    width: Pixels
+    height: Pixels
+    fx: Focal
+    fy: Focal
+    cx: Annotated[float, within(-1e5, 1e5)]
+    cy: Annotated[float, within(-1e5, 1e5)]
+    baseline: Annotated[float, positive(100.0)]  # m
+    frame_rate: Annotated[float, positive(1000.0)]  # Hz
+    supersample: Annotated[int, within(1, 4)]
+    noise_sigma: Annotated[float, within(0.0, 255.0)]  # grey levels
 
 
 @dataclass(frozen=True)
 class SceneConfig:
-    style: str = setting(one_of(*STYLES))
-    block_length: float = setting(POSITIVE)
-    block_width: float = setting(POSITIVE)
-    street_width: float = setting(POSITIVE)
-    wall_height: float = setting(POSITIVE)
+    style: SceneStyle
+    block_length: Metres
+    block_width: Metres
+    street_width: Metres
+    wall_height: Metres
     ceiling: bool
-    segment_length: float = setting(POSITIVE)
-    wall_texels_per_metre: float = setting(POSITIVE)
-    floor_texels_per_metre: float = setting(POSITIVE)
-    object_texels_per_metre: float = setting(POSITIVE)
+    segment_length: Metres
+    wall_texels_per_metre: Texels
+    floor_texels_per_metre: Texels
+    object_texels_per_metre: Texels
 
 
 @dataclass(frozen=True)
 class TagConfig:
-    count: int = setting(between(0, 587))  # the tag36h11 family
-    size: float = setting(POSITIVE)
-    height_min: float = setting(at_least(0.0))
-    height_max: float = setting(at_least(0.0))
-    turn_min_deg: float = setting(between(0.0, 90.0, high_open=True))
-    turn_max_deg: float = setting(between(0.0, 90.0, high_open=True))
-    min_spacing: float = setting(POSITIVE)
+    count: Annotated[int, within(0, 587)]  # the tag36h11 family
+    size: Annotated[float, positive(100.0)]
+    height_min: Gap
+    height_max: Gap
+    turn_min_deg: Annotated[float, within(0.0, 90.0, high_open=True)]
+    turn_max_deg: Annotated[float, within(0.0, 90.0, high_open=True)]
+    min_spacing: Metres
 
 
 @dataclass(frozen=True)
 class ObjectConfig:
-    count: int = setting(at_least(0))
-    class_name: str = setting(ANY)
-    style: str = setting(one_of(*OBJECT_STYLES))
-    length: float = setting(POSITIVE)
-    width: float = setting(POSITIVE)
-    height: float = setting(POSITIVE)
-    wall_gap: float = setting(at_least(0.0))
-    path_clearance: float = setting(at_least(0.0))
+    count: Annotated[int, within(0, 10**4)]
+    class_name: str
+    style: ObjectStyle
+    length: Metres
+    width: Metres
+    height: Metres
+    wall_gap: Gap
+    path_clearance: Gap
 
 
 @dataclass(frozen=True)
 class PathConfig:
-    lane_offset: float = setting(ANY)
-    corner_radius: float = setting(POSITIVE)
-    laps: float = setting(POSITIVE)
-    speed: float = setting(POSITIVE)
-    max_yaw_rate: float = setting(POSITIVE)
-    max_acceleration: float = setting(POSITIVE)
-    camera_height: float = setting(POSITIVE)
-    weave_amplitude: float = setting(ANY)
-    weave_wavelength: float = setting(POSITIVE)
-    sway_amplitude: float = setting(at_least(0.0))
+    lane_offset: Offset
+    corner_radius: Metres
+    laps: Annotated[float, positive(1000.0)]
+    speed: Annotated[float, positive(100.0)]  # m/s
+    max_yaw_rate: Annotated[float, positive(100.0)]  # rad/s
+    max_acceleration: Annotated[float, positive(1000.0)]  # m/s^2
+    camera_height: Metres
+    weave_amplitude: Offset
+    weave_wavelength: Metres
+    sway_amplitude: Gap
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.geometry import invert_pose, quaternion_from_rotation
+from pipeline.geometry import invert_pose
 
 
 def pixel_ray_coordinates(
@@ -52,12 +52,6 @@ def ray_plane_depth(
         return numerator / denominator
 
 
-def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 rigid transform to `(N, 3)` points."""
-    points = np.asarray(points, dtype=np.float64)
-    return points @ transform[:3, :3].T + transform[:3, 3]
-
-
 invert_transform = invert_pose
 
 
@@ -71,11 +65,6 @@ def make_transform(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
 def rotation_from_yaw_pitch_roll(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """World-from-body rotation of a z-up body: yaw about z, then pitch about y, roll about x."""
     return Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_matrix()
-
-
-def quaternion_xyzw(rotation: np.ndarray) -> list[float]:
-    """A rotation matrix as the contract's quaternion `[x, y, z, w]` (w >= 0)."""
-    return quaternion_from_rotation(rotation).tolist()
 
 
 def clip_polygon_near(vertices: np.ndarray, near: float) -> np.ndarray:

@@ -12,8 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from data_tools.renderer.geometry import invert_transform, quaternion_xyzw, transform_points
+from data_tools.renderer.geometry import invert_transform
 from data_tools.renderer.scene import Scene
+from pipeline.geometry import quaternion_from_rotation, transform_points
 
 TAG_CLASS_NAME = "apriltag"
 TAG_FAMILY = "tag36h11"
@@ -39,7 +40,7 @@ def landmark_records(scene: Scene, world_from_body0: np.ndarray) -> list[dict[st
                 "tag_id": tag.tag_id,
                 "family": TAG_FAMILY,
                 "position": _rounded(transform_points(body0_from_world, tag.centre[None])[0]),
-                "rotation": _rounded(quaternion_xyzw(rotation @ tag.rotation)),
+                "rotation": _rounded(quaternion_from_rotation(rotation @ tag.rotation)),
                 "size": [tag.size, tag.size, 0.0],
                 "corners": [_rounded(c) for c in corners],
             }
@@ -52,7 +53,7 @@ def landmark_records(scene: Scene, world_from_body0: np.ndarray) -> list[dict[st
                 "class_name": obj.class_name,
                 "tag_id": None,
                 "position": _rounded(transform_points(body0_from_world, obj.centre[None])[0]),
-                "rotation": _rounded(quaternion_xyzw(rotation @ obj.rotation)),
+                "rotation": _rounded(quaternion_from_rotation(rotation @ obj.rotation)),
                 "size": _rounded(obj.size),
             }
         )

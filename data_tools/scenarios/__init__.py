@@ -16,6 +16,7 @@ from data_tools.scenarios.common import (
     summarise,
     write_log,
 )
+from data_tools.scenarios.config import MAX_NOISE_SCALE
 from pipeline.errors import InputError
 
 _MODULES = {
@@ -25,9 +26,6 @@ _MODULES = {
     planar_park.NAME: planar_park,
 }
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
-# Times the paper's added odometry noise, at most: the paper sweeps 0..10; far beyond, the
-# drawn steps overflow.
-MAX_NOISE_SCALE = 100.0
 
 __all__ = ["MAX_NOISE_SCALE", "SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
 

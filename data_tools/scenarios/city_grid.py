@@ -20,6 +20,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -32,10 +33,18 @@ from data_tools.scenarios.common import (
     source_text,
     vehicle_class_names,
 )
+from data_tools.scenarios.config import (
+    Distance,
+    Length,
+    NumClasses,
+    PerFrame,
+    Probability,
+    Sigma,
+    WorldSeed,
+)
 from data_tools.scenarios.geometry import bearing_elevation_range, relative_poses
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
-    check_odometry_config,
     confusion_matrix,
     corrupt_odometry,
     odometry_covariances,
@@ -44,6 +53,7 @@ from data_tools.scenarios.noise import (
 )
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.settings import positive, within
 
 logger = logging.getLogger(__name__)
 
@@ -59,47 +69,47 @@ PAVEMENT_M = 2.0
 
 @dataclass(frozen=True)
 class GridConfig:
-    streets_x: int
-    streets_y: int
-    block_x_m: float
-    block_y_m: float
+    streets_x: Annotated[int, within(2, 100)]
+    streets_y: Annotated[int, within(2, 100)]
+    block_x_m: Length
+    block_y_m: Length
 
 
 @dataclass(frozen=True)
 class VehicleType:
     name: str
-    frequency: float
+    frequency: Annotated[float, positive(1.0)]
 
 
 @dataclass(frozen=True)
 class ParkingConfig:
-    slot_spacing_m: float
-    kerb_offset_m: float
-    corner_clearance_m: float
-    occupancy: float
-    slot_jitter_m: float
-    centre_height_m: float
+    slot_spacing_m: Length
+    kerb_offset_m: Length
+    corner_clearance_m: Distance
+    occupancy: Probability
+    slot_jitter_m: Distance
+    centre_height_m: Annotated[float, within(-100.0, 100.0)]
 
 
 @dataclass(frozen=True)
 class SensorConfig:
-    camera_height_m: float
-    horizontal_fov_deg: float
-    min_range_m: float
-    max_range_m: float
-    detection_probability_near: float
-    detection_probability_far: float
-    sigma_bearing_rad: float
-    sigma_elevation_rad: float
-    sigma_range_m: float
-    sigma_range_per_m2: float
-    false_alarms_per_frame: float
+    camera_height_m: Annotated[float, within(-100.0, 100.0)]
+    horizontal_fov_deg: Annotated[float, within(0.0, 180.0, low_open=True, high_open=True)]
+    min_range_m: Length
+    max_range_m: Length
+    detection_probability_near: Probability
+    detection_probability_far: Probability
+    sigma_bearing_rad: Sigma
+    sigma_elevation_rad: Sigma
+    sigma_range_m: Sigma
+    sigma_range_per_m2: Annotated[float, within(0.0, 1.0)]
+    false_alarms_per_frame: PerFrame
 
 
 @dataclass(frozen=True)
 class CityGridConfig:
-    world_seed: int
-    num_classes: int
+    world_seed: WorldSeed
+    num_classes: NumClasses
     grid: GridConfig
     route: RouteConfig
     vehicles: tuple[VehicleType, ...]
@@ -115,12 +125,9 @@ def load_config(path: Path | None = None) -> CityGridConfig:
 
 
 def _check(c: CityGridConfig, path: Path) -> None:
+    """What the keys' own ranges cannot say."""
     req = cfg.require
-    req(c.world_seed >= 0, path, "world_seed must be >= 0")
-    req(c.num_classes >= 1, path, "num_classes must be >= 1")
-    g = c.grid
-    req(g.streets_x >= 2 and g.streets_y >= 2, path, "grid needs at least two streets each way")
-    p = c.parking
+    g, p, s = c.grid, c.parking, c.sensor
     street_half = p.kerb_offset_m + PAVEMENT_M
     req(
         min(g.block_x_m, g.block_y_m) > 2 * max(street_half, p.corner_clearance_m),
@@ -129,19 +136,8 @@ def _check(c: CityGridConfig, path: Path) -> None:
     )
     check_route(c.route, path, req)
     req(len(c.vehicles) >= 1, path, "at least one [[vehicles]] entry")
-    req(all(v.frequency > 0 for v in c.vehicles), path, "vehicles frequencies must be positive")
-    req(p.slot_spacing_m > 0 and p.kerb_offset_m > 0, path, "parking spacing and offset > 0")
-    req(0 <= p.occupancy <= 1, path, "parking.occupancy must be within 0..1")
-    req(0 <= p.slot_jitter_m < p.slot_spacing_m / 2, path, "parking.slot_jitter_m too large")
-    s = c.sensor
-    req(0 < s.horizontal_fov_deg < 180, path, "sensor.horizontal_fov_deg must be in (0, 180)")
-    req(0 < s.min_range_m < s.max_range_m, path, "sensor ranges: 0 < min_range_m < max_range_m")
-    for prob in (s.detection_probability_near, s.detection_probability_far):
-        req(0 <= prob <= 1, path, "sensor detection probabilities must be within 0..1")
-    sigmas = (s.sigma_bearing_rad, s.sigma_elevation_rad, s.sigma_range_m)
-    req(all(x > 0 for x in sigmas) and s.sigma_range_per_m2 >= 0, path, "sensor sigmas > 0")
-    req(s.false_alarms_per_frame >= 0, path, "sensor.false_alarms_per_frame must be >= 0")
-    check_odometry_config(c.odometry, path)
+    req(p.slot_jitter_m < p.slot_spacing_m / 2, path, "parking.slot_jitter_m too large")
+    req(s.min_range_m < s.max_range_m, path, "sensor ranges: min_range_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from data_tools.scenarios.geometry import path_length, rotation_to_quaternion
+from data_tools.scenarios.geometry import path_length, quaternion_from_rotation
 from pipeline.log import (
     Detection,
     Detections,
@@ -139,8 +139,8 @@ def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> None:
     detection message is written for every pose, empty or not, so keyframes are explicit.
     """
     n = len(run.poses)
-    quaternions = rotation_to_quaternion(run.poses[:, :3, :3])
-    odom_quaternions = rotation_to_quaternion(run.odometry[:, :3, :3])
+    quaternions = quaternion_from_rotation(run.poses[:, :3, :3])
+    odom_quaternions = quaternion_from_rotation(run.odometry[:, :3, :3])
     covariance = floats(run.odometry_covariance)
     stamps = [int(t) for t in run.times_ns]
     with LogWriter(path, run.metadata, foxglove=foxglove) as writer:

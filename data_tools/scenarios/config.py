@@ -1,17 +1,48 @@
 """Scenario configuration: defaults in `configs/scenarios/<name>.toml`, read with the shared
-loader (`pipeline/settings.py`) into the scenario's frozen dataclasses."""
+loader (`pipeline/settings.py`) into the scenario's frozen dataclasses, whose fields declare
+their ranges with the kinds of value below."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TypeVar
+from typing import Annotated, TypeVar
 
 from pipeline import settings
-from pipeline.settings import read_toml, require
+from pipeline.settings import UNIT, positive, read_toml, require, within
 
 T = TypeVar("T")
+# Times the paper's added odometry noise, at most: the paper sweeps 0..10; far beyond, the
+# drawn steps overflow.
+MAX_NOISE_SCALE = 100.0
 
-__all__ = ["default_config_path", "load", "read_toml", "require"]
+WorldSeed = Annotated[int, within(0, 2**32 - 1)]
+NumClasses = Annotated[int, within(1, 1000)]
+Length = Annotated[float, positive(1e5)]  # m: a size or a distance in the world
+Distance = Annotated[float, within(0.0, 1e5)]  # m, may be 0
+Coordinate = Annotated[float, within(-1e5, 1e5)]  # m
+Sigma = Annotated[float, positive(100.0)]  # a standard deviation, m or rad
+Spread = Annotated[float, within(0.0, 100.0)]  # a standard deviation that may be 0
+Probability = Annotated[float, UNIT]
+PerFrame = Annotated[float, within(0.0, 1000.0)]  # a mean count of each frame
+Count = Annotated[int, within(1, 10**5)]
+
+__all__ = [
+    "MAX_NOISE_SCALE",
+    "Coordinate",
+    "Count",
+    "Distance",
+    "Length",
+    "NumClasses",
+    "PerFrame",
+    "Probability",
+    "Sigma",
+    "Spread",
+    "WorldSeed",
+    "default_config_path",
+    "load",
+    "read_toml",
+    "require",
+]
 
 
 def default_config_path(scenario: str) -> Path:

@@ -21,11 +21,6 @@ from pipeline.geometry import (  # noqa: F401 - the shared math, re-exported for
 inverse = invert_pose
 
 
-def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """(N, 3, 3) rotations to (N, 4) unit quaternions `[x, y, z, w]` with `w >= 0`."""
-    return quaternion_from_rotation(np.asarray(rotation, dtype=float).reshape(-1, 3, 3))
-
-
 def relative_poses(poses: np.ndarray) -> np.ndarray:
     """The (N-1) motions `inv(T_k) @ T_{k+1}` of a pose sequence."""
     return inverse(poses[:-1]) @ poses[1:]
@@ -58,11 +53,6 @@ def yaw_rotation(yaw: np.ndarray) -> np.ndarray:
     out[..., 1, 0], out[..., 1, 1] = s, c
     out[..., 2, 2] = 1.0
     return out
-
-
-def transform_points(poses: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Points given in the frames of `poses` to the parent frame (broadcasting)."""
-    return np.einsum("...ij,...j->...i", poses[..., :3, :3], points) + poses[..., :3, 3]
 
 
 def path_length(positions: np.ndarray) -> float:

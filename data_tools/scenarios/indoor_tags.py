@@ -18,6 +18,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
@@ -29,26 +30,36 @@ from data_tools.scenarios.common import (
     metadata_for,
     source_text,
 )
+from data_tools.scenarios.config import (
+    Coordinate,
+    Count,
+    Distance,
+    Length,
+    NumClasses,
+    Probability,
+    Sigma,
+    WorldSeed,
+)
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     inverse,
     pose_from_rotation_translation,
+    quaternion_from_rotation,
     relative_poses,
-    rotation_to_quaternion,
     se3_exp,
 )
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
-    check_odometry_config,
     confusion_matrix,
     corrupt_odometry,
     odometry_covariances,
     random_streams,
     sample_reported_classes,
 )
-from data_tools.scenarios.routes import RouteConfig, drive, junction_route
+from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.errors import InputError
 from pipeline.log import Detection, GroundTruthLandmark, RelativePose
+from pipeline.settings import within
 
 logger = logging.getLogger(__name__)
 
@@ -60,42 +71,42 @@ LINE_OF_SIGHT_SAMPLES = np.linspace(0.0, 0.97, 48)
 
 @dataclass(frozen=True)
 class FloorConfig:
-    corridor_x_m: tuple[float, ...]
-    corridor_y_m: tuple[float, ...]
-    corridor_width_m: float
+    corridor_x_m: tuple[Coordinate, ...]
+    corridor_y_m: tuple[Coordinate, ...]
+    corridor_width_m: Length
 
 
 @dataclass(frozen=True)
 class TagConfig:
-    count: int
-    min_spacing_m: float
-    height_min_m: float
-    height_max_m: float
-    junction_clearance_m: float
+    count: Count
+    min_spacing_m: Distance
+    height_min_m: Annotated[float, within(-100.0, 100.0)]
+    height_max_m: Annotated[float, within(-100.0, 100.0)]
+    junction_clearance_m: Distance
 
 
 @dataclass(frozen=True)
 class TagCameraConfig:
-    horizontal_fov_deg: float
-    vertical_fov_deg: float
-    max_range_m: float
-    max_incidence_deg: float
-    detection_probability: float
+    horizontal_fov_deg: Annotated[float, within(0.0, 180.0, low_open=True, high_open=True)]
+    vertical_fov_deg: Annotated[float, within(0.0, 180.0, low_open=True, high_open=True)]
+    max_range_m: Length
+    max_incidence_deg: Annotated[float, within(0.0, 90.0, low_open=True)]
+    detection_probability: Probability
 
 
 @dataclass(frozen=True)
 class TagMeasurementConfig:
-    sigma_bearing_rad: float
-    sigma_elevation_rad: float
-    sigma_range_m: float
-    relative_pose_sigma_rotation_rad: float
-    relative_pose_sigma_translation_m: float
+    sigma_bearing_rad: Sigma
+    sigma_elevation_rad: Sigma
+    sigma_range_m: Sigma
+    relative_pose_sigma_rotation_rad: Sigma
+    relative_pose_sigma_translation_m: Sigma
 
 
 @dataclass(frozen=True)
 class IndoorTagsConfig:
-    world_seed: int
-    num_classes: int
+    world_seed: WorldSeed
+    num_classes: NumClasses
     floor: FloorConfig
     route: RouteConfig
     tags: TagConfig
@@ -111,9 +122,8 @@ def load_config(path: Path | None = None) -> IndoorTagsConfig:
 
 
 def _check(c: IndoorTagsConfig, path: Path) -> None:
+    """What the keys' own ranges cannot say."""
     req = cfg.require
-    req(c.world_seed >= 0, path, "world_seed must be >= 0")
-    req(c.num_classes >= 1, path, "num_classes must be >= 1")
     for axis in (c.floor.corridor_x_m, c.floor.corridor_y_m):
         req(len(axis) >= 2, path, "floor needs at least two corridors each way")
         req(bool(np.all(np.diff(axis) > 0)), path, "floor corridors must be in increasing order")
@@ -124,32 +134,17 @@ def _check(c: IndoorTagsConfig, path: Path) -> None:
             path,
             "floor corridors are closer than their width",
         )
-    req(c.floor.corridor_width_m > 0, path, "floor.corridor_width_m must be positive")
-    r = c.route
-    req(r.length_m > 0 and r.speed_mps > 0 and r.keyframe_period_s > 0, path, "route values > 0")
-    req(r.corner_smoothing_m >= 0 and r.wander_wavelength_m > 0, path, "route shape values > 0")
+    check_route(c.route, path, req)
     req(
-        r.wander_amplitude_m >= 0 and r.wander_amplitude_m < c.floor.corridor_width_m / 2,
+        c.route.wander_amplitude_m < c.floor.corridor_width_m / 2,
         path,
         "route.wander_amplitude_m must keep the robot inside its corridor",
     )
-    t = c.tags
-    req(t.count >= 1 and t.min_spacing_m >= 0, path, "tags.count >= 1, min_spacing_m >= 0")
-    req(t.height_min_m <= t.height_max_m, path, "tags.height_min_m must be <= height_max_m")
-    cam = c.camera
-    req(0 < cam.horizontal_fov_deg < 180 and 0 < cam.vertical_fov_deg < 180, path, "bad fov")
-    req(cam.max_range_m > 0 and 0 < cam.max_incidence_deg <= 90, path, "bad range or incidence")
-    req(0 <= cam.detection_probability <= 1, path, "camera.detection_probability in 0..1")
-    m = c.measurement
-    sigmas = (
-        m.sigma_bearing_rad,
-        m.sigma_elevation_rad,
-        m.sigma_range_m,
-        m.relative_pose_sigma_rotation_rad,
-        m.relative_pose_sigma_translation_m,
+    req(
+        c.tags.height_min_m <= c.tags.height_max_m,
+        path,
+        "tags.height_min_m must be <= height_max_m",
     )
-    req(all(s > 0 for s in sigmas), path, "measurement sigmas must be positive")
-    check_odometry_config(c.odometry, path)
 
 
 # --- the world ------------------------------------------------------------------------------
@@ -328,7 +323,7 @@ def simulate(
     pose_noise = rng.standard_normal((len(tag_id), 6)) * pose_sigmas
     measured = bearing_elevation_range(relative[:, :3, 3]) + point_noise
     measured_pose = relative @ se3_exp(pose_noise)
-    measured_quaternion = rotation_to_quaternion(measured_pose[:, :3, :3])
+    measured_quaternion = quaternion_from_rotation(measured_pose[:, :3, :3])
 
     true_class = tag_id % num_classes
     confusion = confusion_matrix(num_classes, options.misclassification)

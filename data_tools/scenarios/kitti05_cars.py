@@ -17,6 +17,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -31,6 +32,13 @@ from data_tools.scenarios.common import (
     source_text,
     vehicle_class_names,
 )
+from data_tools.scenarios.config import (
+    Distance,
+    Length,
+    PerFrame,
+    Sigma,
+    WorldSeed,
+)
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     orthonormalise,
@@ -39,7 +47,6 @@ from data_tools.scenarios.geometry import (
 )
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
-    check_odometry_config,
     confusion_matrix,
     corrupt_odometry,
     logistic,
@@ -47,15 +54,15 @@ from data_tools.scenarios.noise import (
     random_streams,
     sample_reported_classes,
 )
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.datasets.kitti import (
-    BODY_FROM_CAMERA,
-    StereoIntrinsics,
     camera_poses_to_body,
     read_poses,
     read_times,
 )
 from pipeline.errors import InputError
 from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.settings import PROBABILITY, positive, within
 
 logger = logging.getLogger(__name__)
 
@@ -68,55 +75,58 @@ _BOX_CORNERS = np.array(
 _NEAR_PLANE_M = 0.1  # box corners closer than this to the image plane are not projected
 
 
+Logit = Annotated[float, within(-100.0, 100.0)]
+
+
 @dataclass(frozen=True)
 class SequenceConfig:
     data_dir: str  # "": KITTI 05 as shipped (data_tools/data); else a folder like it
-    camera_height_m: float
+    camera_height_m: Annotated[float, positive(100.0)]
 
 
 @dataclass(frozen=True)
 class VehicleClass:
     name: str
-    frequency: float
-    length_m: float
-    width_m: float
-    height_m: float
+    frequency: Annotated[float, positive(1.0)]
+    length_m: Annotated[float, positive(100.0)]
+    width_m: Annotated[float, positive(100.0)]
+    height_m: Annotated[float, positive(100.0)]
 
 
 @dataclass(frozen=True)
 class ParkingConfig:
-    path_step_m: float
-    revisit_radius_m: float
-    revisit_min_arc_m: float
-    right_offset_m: float
-    left_offset_m: float
-    offset_jitter_m: float
-    heading_jitter_deg: float
-    row_mean_cars: float
-    gap_min_m: float
-    gap_max_m: float
-    empty_mean_m: float
-    min_path_clearance_m: float
-    min_separation_m: float
+    path_step_m: Length
+    revisit_radius_m: Length
+    revisit_min_arc_m: Distance
+    right_offset_m: Annotated[float, within(-1000.0, 1000.0)]
+    left_offset_m: Annotated[float, within(-1000.0, 1000.0)]
+    offset_jitter_m: Distance
+    heading_jitter_deg: Annotated[float, within(0.0, 180.0)]
+    row_mean_cars: Annotated[float, within(1.0, 1000.0)]
+    gap_min_m: Distance
+    gap_max_m: Distance
+    empty_mean_m: Length
+    min_path_clearance_m: Distance
+    min_separation_m: Distance
 
 
 @dataclass(frozen=True)
 class DetectorConfig:
-    max_range_m: float
-    min_depth_m: float
-    score_threshold: float
-    score_logit_near: float
-    score_logit_far: float
-    score_logit_sigma: float
-    false_alarms_per_frame: float
-    false_alarm_logit_mean: float
-    pixel_sigma_px: float
-    disparity_sigma_px: float
+    max_range_m: Length
+    min_depth_m: Length
+    score_threshold: Annotated[float, PROBABILITY]
+    score_logit_near: Logit
+    score_logit_far: Logit
+    score_logit_sigma: Sigma
+    false_alarms_per_frame: PerFrame
+    false_alarm_logit_mean: Logit
+    pixel_sigma_px: Annotated[float, positive(1000.0)]
+    disparity_sigma_px: Annotated[float, positive(1000.0)]
 
 
 @dataclass(frozen=True)
 class Kitti05CarsConfig:
-    world_seed: int
+    world_seed: WorldSeed
     sequence: SequenceConfig
     camera: StereoIntrinsics
     vehicles: tuple[VehicleClass, ...]
@@ -137,28 +147,12 @@ def load_config(path: Path | None = None) -> Kitti05CarsConfig:
 
 
 def _check(c: Kitti05CarsConfig, path: Path) -> None:
+    """What the keys' own ranges cannot say."""
     req = cfg.require
-    req(c.world_seed >= 0, path, "world_seed must be >= 0")
-    req(c.sequence.camera_height_m > 0, path, "sequence.camera_height_m must be positive")
-    cam = c.camera
-    req(cam.width > 0 and cam.height > 0, path, "camera image size must be positive")
-    req(cam.fx > 0 and cam.fy > 0 and cam.baseline > 0, path, "camera fx, fy, baseline > 0")
     req(len(c.vehicles) >= 1, path, "at least one vehicle class is needed")
-    for v in c.vehicles:
-        req(v.frequency > 0, path, f"vehicle {v.name!r}: frequency must be positive")
-        req(min(v.length_m, v.width_m, v.height_m) > 0, path, f"vehicle {v.name!r}: bad size")
-    p = c.parking
-    req(p.path_step_m > 0 and p.revisit_radius_m > 0, path, "parking step and radius > 0")
-    req(p.row_mean_cars >= 1, path, "parking.row_mean_cars must be >= 1")
-    req(0 <= p.gap_min_m <= p.gap_max_m, path, "parking gaps: 0 <= gap_min_m <= gap_max_m")
-    req(p.empty_mean_m > 0 and p.offset_jitter_m >= 0, path, "parking.empty_mean_m > 0")
-    d = c.detector
-    req(0 < d.min_depth_m < d.max_range_m, path, "detector: 0 < min_depth_m < max_range_m")
-    req(0 < d.score_threshold < 1, path, "detector.score_threshold must be within (0, 1)")
-    req(d.score_logit_sigma > 0, path, "detector.score_logit_sigma must be positive")
-    req(d.false_alarms_per_frame >= 0, path, "detector.false_alarms_per_frame must be >= 0")
-    req(d.pixel_sigma_px > 0 and d.disparity_sigma_px > 0, path, "detector sigmas must be > 0")
-    check_odometry_config(c.odometry, path)
+    p, d = c.parking, c.detector
+    req(p.gap_min_m <= p.gap_max_m, path, "parking gaps: gap_min_m <= gap_max_m")
+    req(d.min_depth_m < d.max_range_m, path, "detector: min_depth_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------

@@ -15,12 +15,13 @@ makes the very same errors larger: runs at different scales are paired, as in a 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 
-from data_tools.scenarios.config import require
+from data_tools.scenarios.config import MAX_NOISE_SCALE, Sigma, Spread
 from data_tools.scenarios.geometry import se3_exp
+from pipeline.settings import within
 
 # Named random streams: each kind of draw has its own, so changing one option (say the
 # misclassification rate) leaves every other draw of the run as it was.
@@ -31,21 +32,13 @@ STREAMS = ("odometry", "visibility", "measurement", "classes", "false_positives"
 class OdometryNoiseConfig:
     """Sigmas per keyframe: the calibrated model (base) and the paper's added noise."""
 
-    base_rotation_sigma_rad: tuple[float, float, float]  # roll, pitch, yaw
-    base_translation_sigma_m: tuple[float, float, float]  # x, y, z (body frame)
-    added_sigma_x_m: float
-    added_sigma_y_m: float
-    added_sigma_yaw_rad: float
-    default_noise_scale: float  # --odom-noise-scale when none is given
-
-
-def check_odometry_config(o: OdometryNoiseConfig, path: Path | str) -> None:
-    """Calibrated sigmas must be positive (the log's covariance), added ones non-negative."""
-    base = (*o.base_rotation_sigma_rad, *o.base_translation_sigma_m)
-    require(all(s > 0 for s in base), path, "odometry base sigmas must be positive")
-    added = (o.added_sigma_x_m, o.added_sigma_y_m, o.added_sigma_yaw_rad)
-    require(all(s >= 0 for s in added), path, "odometry added sigmas must be >= 0")
-    require(o.default_noise_scale >= 0, path, "odometry default_noise_scale must be >= 0")
+    base_rotation_sigma_rad: tuple[Sigma, Sigma, Sigma]  # roll, pitch, yaw
+    base_translation_sigma_m: tuple[Sigma, Sigma, Sigma]  # x, y, z (body frame)
+    added_sigma_x_m: Spread
+    added_sigma_y_m: Spread
+    added_sigma_yaw_rad: Spread
+    # --odom-noise-scale when none is given
+    default_noise_scale: Annotated[float, within(0.0, MAX_NOISE_SCALE)]
 
 
 def random_streams(seed: int) -> dict[str, np.random.Generator]:

@@ -18,6 +18,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -30,6 +31,16 @@ from data_tools.scenarios.common import (
     metadata_for,
     source_text,
 )
+from data_tools.scenarios.config import (
+    MAX_NOISE_SCALE,
+    Distance,
+    Length,
+    PerFrame,
+    Probability,
+    Sigma,
+    Spread,
+    WorldSeed,
+)
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     pose_from_rotation_translation,
@@ -39,6 +50,7 @@ from data_tools.scenarios.geometry import (
 from data_tools.scenarios.noise import random_streams
 from data_tools.scenarios.routes import RouteConfig, check_route, drive
 from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.settings import positive, within
 
 logger = logging.getLogger(__name__)
 
@@ -47,48 +59,48 @@ NAME = "planar-park"
 
 @dataclass(frozen=True)
 class ParkConfig:
-    size_m: float
-    tree_count: int
-    min_spacing_m: float
-    path_clearance_m: float
-    places: int
-    margin_m: float
-    next_choices: int
+    size_m: Length
+    tree_count: Annotated[int, within(1, 10**5)]
+    min_spacing_m: Distance
+    path_clearance_m: Distance
+    places: Annotated[int, within(3, 1000)]
+    margin_m: Distance
+    next_choices: Annotated[int, within(1, 1000)]
 
 
 @dataclass(frozen=True)
 class ScannerConfig:
-    fov_deg: float
-    min_range_m: float
-    max_range_m: float
-    detection_probability: float
-    clutter_per_frame: float
-    sigma_bearing_rad: float
-    sigma_range_m: float
-    stated_sigma_bearing_rad: float
-    stated_sigma_elevation_rad: float
-    stated_sigma_range_m: float
+    fov_deg: Annotated[float, positive(360.0)]
+    min_range_m: Length
+    max_range_m: Length
+    detection_probability: Probability
+    clutter_per_frame: PerFrame
+    sigma_bearing_rad: Sigma
+    sigma_range_m: Sigma
+    stated_sigma_bearing_rad: Sigma
+    stated_sigma_elevation_rad: Sigma
+    stated_sigma_range_m: Sigma
 
 
 @dataclass(frozen=True)
 class BiasedOdometryConfig:
-    white_sigma_x_m: float
-    white_sigma_y_m: float
-    white_sigma_yaw_rad: float
-    bias_scale_sigma: float
-    bias_yaw_sigma_rad: float
-    bias_correlation: float
-    default_noise_scale: float
-    stated_sigma_x_m: float
-    stated_sigma_y_m: float
-    stated_sigma_yaw_rad: float
-    stated_flat_variance: float
+    white_sigma_x_m: Sigma
+    white_sigma_y_m: Sigma
+    white_sigma_yaw_rad: Sigma
+    bias_scale_sigma: Spread
+    bias_yaw_sigma_rad: Spread
+    bias_correlation: Annotated[float, within(0.0, 1.0, high_open=True)]
+    default_noise_scale: Annotated[float, within(0.0, MAX_NOISE_SCALE)]
+    stated_sigma_x_m: Sigma
+    stated_sigma_y_m: Sigma
+    stated_sigma_yaw_rad: Sigma
+    stated_flat_variance: Annotated[float, positive(1e4)]
 
 
 @dataclass(frozen=True)
 class PlanarParkConfig:
-    world_seed: int
-    num_classes: int
+    world_seed: WorldSeed
+    num_classes: Annotated[int, within(1, 1)]  # trees
     park: ParkConfig
     route: RouteConfig
     scanner: ScannerConfig
@@ -102,37 +114,13 @@ def load_config(path: Path | None = None) -> PlanarParkConfig:
 
 
 def _check(c: PlanarParkConfig, path: Path) -> None:
+    """What the keys' own ranges cannot say."""
     req = cfg.require
-    req(c.world_seed >= 0, path, "world_seed must be >= 0")
-    req(c.num_classes == 1, path, "num_classes must be 1 (trees)")
-    p = c.park
-    req(p.size_m > 2 * p.margin_m and p.margin_m >= 0, path, "park.size_m must exceed 2 margin_m")
-    req(p.tree_count >= 1 and p.min_spacing_m >= 0, path, "park: tree_count >= 1, spacing >= 0")
-    req(p.places >= 3 and 1 <= p.next_choices < p.places, path, "park: places >= 3, choices")
-    req(p.path_clearance_m >= 0, path, "park.path_clearance_m must be >= 0")
+    p, s = c.park, c.scanner
+    req(p.size_m > 2 * p.margin_m, path, "park.size_m must exceed 2 margin_m")
+    req(p.next_choices < p.places, path, "park.next_choices must be < places")
     check_route(c.route, path, req)
-    s = c.scanner
-    req(0 < s.fov_deg <= 360, path, "scanner.fov_deg must be in (0, 360]")
-    req(0 < s.min_range_m < s.max_range_m, path, "scanner ranges: 0 < min_range_m < max_range_m")
-    req(0 <= s.detection_probability <= 1, path, "scanner.detection_probability in 0..1")
-    req(s.clutter_per_frame >= 0, path, "scanner.clutter_per_frame must be >= 0")
-    sigmas = (
-        s.sigma_bearing_rad,
-        s.sigma_range_m,
-        s.stated_sigma_bearing_rad,
-        s.stated_sigma_elevation_rad,
-        s.stated_sigma_range_m,
-    )
-    req(all(x > 0 for x in sigmas), path, "scanner sigmas must be positive")
-    o = c.odometry
-    white = (o.white_sigma_x_m, o.white_sigma_y_m, o.white_sigma_yaw_rad)
-    req(all(x > 0 for x in white), path, "odometry white sigmas must be positive")
-    req(o.bias_scale_sigma >= 0 and o.bias_yaw_sigma_rad >= 0, path, "odometry bias sigmas >= 0")
-    req(0 <= o.bias_correlation < 1, path, "odometry.bias_correlation must be in [0, 1)")
-    stated = (o.stated_sigma_x_m, o.stated_sigma_y_m, o.stated_sigma_yaw_rad)
-    req(all(x > 0 for x in stated), path, "odometry stated sigmas must be positive")
-    req(o.stated_flat_variance > 0, path, "odometry.stated_flat_variance must be positive")
-    req(o.default_noise_scale >= 0, path, "odometry.default_noise_scale must be >= 0")
+    req(s.min_range_m < s.max_range_m, path, "scanner ranges: min_range_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------

@@ -9,23 +9,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
+from data_tools.scenarios.config import Distance, Length, Spread
 from data_tools.scenarios.geometry import pose_from_rotation_translation, yaw_rotation
 from pipeline.errors import InputError
+from pipeline.settings import positive
 
 DENSE_STEP_M = 0.05  # resolution of the route before smoothing
 
 
 @dataclass(frozen=True)
 class RouteConfig:
-    length_m: float
-    speed_mps: float
-    keyframe_period_s: float
-    corner_smoothing_m: float
-    wander_amplitude_m: float
-    wander_wavelength_m: float
+    length_m: Length
+    speed_mps: Annotated[float, positive(100.0)]
+    keyframe_period_s: Annotated[float, positive(3600.0)]
+    corner_smoothing_m: Distance
+    wander_amplitude_m: Spread
+    wander_wavelength_m: Length
 
 
 def junction_route(
@@ -102,9 +105,16 @@ def drive(vertices: np.ndarray, route: RouteConfig, scenario: str) -> tuple[np.n
     return times_ns, poses
 
 
+MAX_KEYFRAMES = 10**6  # a route's keyframes at the most: a log of them is about 1 GB
+
+
 def check_route(r: RouteConfig, path, require) -> None:
+    """What the keys' own ranges cannot say: the keyframes the route makes."""
+    keyframes = r.length_m / (r.speed_mps * r.keyframe_period_s)
     require(
-        r.length_m > 0 and r.speed_mps > 0 and r.keyframe_period_s > 0, path, "route values > 0"
+        keyframes <= MAX_KEYFRAMES,
+        path,
+        f"route.length_m / (speed_mps * keyframe_period_s) must be <= {MAX_KEYFRAMES} keyframes,"
+        f" got {keyframes:.3g} ({r.length_m:g} m at {r.speed_mps:g} m/s every"
+        f" {r.keyframe_period_s:g} s)",
     )
-    require(r.corner_smoothing_m >= 0 and r.wander_wavelength_m > 0, path, "route shape values > 0")
-    require(r.wander_amplitude_m >= 0, path, "route.wander_amplitude_m must be >= 0")

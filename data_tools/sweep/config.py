@@ -8,9 +8,9 @@ relative to the file. Every problem is an `InputError` naming the file and the k
     scenario = "indoor-tags"
     scenario_config = "small.toml"    # optional, over configs/scenarios/<scenario>.toml
     backend_config = "backend.toml"   # optional, over configs/default.toml
-    num_classes = 2                   # optional (default: the scenario's); >= 1
+    num_classes = 2                   # optional (default: the scenario's); in [1, 1000]
     true_covariance = false           # optional
-    seeds = 10                        # seeds 0..9 (>= 1), or a list of seeds >= 0: [0, 4, 7]
+    seeds = 10                        # seeds 0..9 (1 to 10000), or a list of seeds >= 0: [0, 4, 7]
     methods = ["known", "ml", "gpda", "mm", "mm-nh"]
     odom_noise_scale = 1.0            # the base cell (default: the scenario's); in [0, 100]
     misclassification = 0.1           # the base cell (default: 0); in [0, 1]
@@ -32,6 +32,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import msgspec.inspect as mi
+
 from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS
 from pipeline import settings
 from pipeline.errors import InputError
@@ -39,12 +41,12 @@ from pipeline.errors import InputError
 FACTORS = ("odom_noise_scale", "misclassification")
 # Valid ranges (`pipeline/settings.py`); the sweep files' comments say the same.
 FACTOR_RANGES = {
-    "odom_noise_scale": settings.between(0.0, MAX_NOISE_SCALE),
-    "misclassification": settings.between(0.0, 1.0),  # a rate, not a percentage
+    "odom_noise_scale": settings.number_type(float, settings.within(0.0, MAX_NOISE_SCALE)),
+    "misclassification": settings.number_type(float, settings.UNIT),  # a rate, not a percentage
 }
-SEED = settings.at_least(0)
-SEED_COUNT = settings.at_least(1)
-NUM_CLASSES = settings.at_least(1)
+SEED = settings.number_type(int, settings.within(0, 2**32 - 1))
+SEED_COUNT = settings.number_type(int, settings.within(1, 10**4))
+NUM_CLASSES = settings.number_type(int, settings.within(1, 1000))
 FACTOR_LABELS = {
     "odom_noise_scale": "odometry noise scale",
     "misclassification": "misclassification rate",
@@ -106,7 +108,7 @@ def _number(value: Any, path: Path, key: str) -> float:
     return float(value)
 
 
-def _integer(value: Any, path: Path, key: str, valid: settings.Valid) -> int:
+def _integer(value: Any, path: Path, key: str, valid: mi.Type) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise _fail(path, f"'{key}' must be an integer, got {value!r}")
     settings.check_range(value, valid, path, key)

@@ -30,20 +30,19 @@ The reader has the same face as `KittiSequence`: `len`, `[i]` -> (left, right) g
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from pipeline.datasets.camera import StereoIntrinsics, check_intrinsics
 from pipeline.datasets.kitti import (
-    StereoIntrinsics,
-    check_intrinsics,
     read_poses,
     read_times,
 )
 from pipeline.datasets.stereo import StereoSequence, pair_files, read_image
 from pipeline.errors import InputError
+from pipeline.settings import read_toml
 
 CALIBRATION_FILE = "calibration.toml"
 CAMERA_KEYS = ("fx", "fy", "cx", "cy", "baseline")
@@ -59,15 +58,7 @@ def _number(table: dict[str, Any], key: str, path: Path, where: str) -> float:
 def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str, Any]]:
     """The `[camera]` numbers and the `[sequence]` settings of a calibration.toml."""
     path = Path(path)
-    try:
-        with open(path, "rb") as f:
-            document = tomllib.load(f)
-    except OSError as exc:
-        raise InputError(f"calibration {path}: cannot read ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"calibration {path}: not valid TOML ({exc})") from None
-    except UnicodeDecodeError:
-        raise InputError(f"calibration {path}: not UTF-8 text") from None
+    document = read_toml(path, "calibration")
     camera = document.get("camera")
     if not isinstance(camera, dict):
         raise InputError(f"calibration {path}: needs a [camera] table")
@@ -93,6 +84,23 @@ def read_plain_calibration(path: str | Path) -> tuple[dict[str, float], dict[str
     if _number(sequence, "frame_rate", path, "sequence.") <= 0:
         raise InputError(f"calibration {path}: sequence.frame_rate must be positive")
     return numbers, sequence
+
+
+def intrinsics_for_images(
+    path: Path, camera: dict[str, Any], width: int, height: int
+) -> StereoIntrinsics:
+    """The `[camera]` table of the plain calibration file `path`, for images of this size:
+    its width and height, where it gives them, must be the images'."""
+    for key, actual in (("width", width), ("height", height)):
+        if key in camera and int(camera[key]) != actual:
+            raise InputError(
+                f"calibration {path}: camera.{key} is {int(camera[key])} but the images are "
+                f"{actual}"
+            )
+    keys = ("fx", "fy", "cx", "cy", "baseline")
+    intrinsics = StereoIntrinsics(width, height, *(camera[key] for key in keys))
+    check_intrinsics(intrinsics, str(path))
+    return intrinsics
 
 
 class PlainSequence(StereoSequence):
@@ -124,22 +132,7 @@ class PlainSequence(StereoSequence):
         first = read_image(self.left_files[0])
         self.colour = first.ndim == 3
         height, width = first.shape[:2]
-        for key, actual in (("width", width), ("height", height)):
-            if key in camera and int(camera[key]) != actual:
-                raise InputError(
-                    f"calibration {calibration}: camera.{key} is {int(camera[key])} but the "
-                    f"images are {actual}"
-                )
-        self.intrinsics = StereoIntrinsics(
-            width,
-            height,
-            camera["fx"],
-            camera["fy"],
-            camera["cx"],
-            camera["cy"],
-            camera["baseline"],
-        )
-        check_intrinsics(self.intrinsics, str(calibration))
+        self.intrinsics = intrinsics_for_images(calibration, camera, width, height)
         self.gt_poses = None
         poses_path = self.root / "poses.txt"
         if poses_path.exists():

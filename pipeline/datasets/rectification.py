@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.datasets.kitti import StereoIntrinsics, check_intrinsics
+from pipeline.datasets.camera import StereoIntrinsics, check_intrinsics
 from pipeline.errors import InputError
 
 MODELS = ("radtan", "equidistant")

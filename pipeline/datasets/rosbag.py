@@ -36,9 +36,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.datasets.kitti import StereoIntrinsics, check_intrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.datasets.pairing import pair_stamps
-from pipeline.datasets.plain import read_plain_calibration
+from pipeline.datasets.plain import intrinsics_for_images, read_plain_calibration
 from pipeline.datasets.rectification import CameraModel, Rectification
 from pipeline.datasets.stereo import StereoSequence
 from pipeline.errors import InputError
@@ -380,23 +380,7 @@ class RosbagSequence(StereoSequence):
 
     def _file_intrinsics(self, path: Path, width: int, height: int) -> StereoIntrinsics:
         camera, _ = read_plain_calibration(path)
-        for key, actual in (("width", width), ("height", height)):
-            if key in camera and int(camera[key]) != actual:
-                raise InputError(
-                    f"calibration {path}: camera.{key} is {int(camera[key])} but the images "
-                    f"are {actual}"
-                )
-        intrinsics = StereoIntrinsics(
-            width,
-            height,
-            camera["fx"],
-            camera["fy"],
-            camera["cx"],
-            camera["cy"],
-            camera["baseline"],
-        )
-        check_intrinsics(intrinsics, str(path))
-        return intrinsics
+        return intrinsics_for_images(path, camera, width, height)
 
     # --- frames --------------------------------------------------------------------------
 

@@ -17,7 +17,7 @@ import numpy as np
 from pipeline.errors import InputError
 
 if TYPE_CHECKING:
-    from pipeline.datasets.kitti import StereoIntrinsics
+    from pipeline.datasets.camera import StereoIntrinsics
 
 log = logging.getLogger(__name__)
 

@@ -23,12 +23,12 @@ from typing import TYPE_CHECKING, Any
 
 import foxglove.messages as fg
 import numpy as np
-from mcap.writer import CompressionType, Writer
 
 from pipeline.backend.hypotheses import NULL
 from pipeline.errors import InputError
 from pipeline.foxglove import messages as fm
 from pipeline.foxglove.channels import FoxgloveChannels
+from pipeline.log.writer import mcap_writer
 from pipeline.outputs import AtomicFile
 
 if TYPE_CHECKING:
@@ -107,7 +107,7 @@ class FoxgloveSink:
         messages = self._messages(result, metrics)
         messages.sort(key=lambda m: m[0])  # stable: in time order, as the log's are
         with AtomicFile(self.path) as out:
-            writer = Writer(out.file, compression=CompressionType.ZSTD)
+            writer = mcap_writer(out.file)
             writer.start(profile="", library="mmslam")
             writer.add_metadata("mmslam.estimate", {"method": self.method})
             channels = FoxgloveChannels(writer)

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from pupil_apriltags import Detector as _BindingDetector
 
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, StereoIntrinsics
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.frontend.config import AprilTagConfig
 from pipeline.frontend.geometry import (
     project,
@@ -128,7 +128,7 @@ def refine_tag_pose(
     pose = camera_from_tag.copy()
     cost = np.inf
     information = np.eye(6)
-    object_skews = _skew_rows(object_points)
+    object_skews = skew(object_points)
     d_point = np.zeros((len(object_points), 3, 6))
     for iteration in range(iterations + 1):
         rotation = pose[:3, :3]
@@ -186,10 +186,6 @@ def tangent_difference(pose: np.ndarray, other: np.ndarray) -> np.ndarray:
     in `pose`'s frame (first order in the translation)."""
     relative = np.linalg.inv(pose) @ other
     return np.concatenate([so3_log(relative[:3, :3]), relative[:3, 3]])
-
-
-def _skew_rows(vectors: np.ndarray) -> np.ndarray:
-    return np.array([skew(v) for v in vectors])
 
 
 class AprilTagDetector:

@@ -1,6 +1,7 @@
 """Typed front-end configuration: defaults in configs/frontend.toml, overridden by a user file.
 
-Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load;
+Each setting's type and valid range are declared beside it (`pipeline/settings.py`) and
+checked at load;
 `check_frontend_config` checks what spans keys.
 """
 
@@ -8,107 +9,113 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal, get_args
 
 from pipeline import settings
 from pipeline.errors import InputError
-from pipeline.settings import ANY, FRACTION, POSITIVE, at_least, between, one_of, setting
+from pipeline.frontend.model_files import resolve_model_path
+from pipeline.settings import FRACTION, UNIT, positive, within
 
-IMAGE_FORMATS = ("jpeg", "png")
+ImageFormat = Literal["jpeg", "png"]
+IMAGE_FORMATS = get_args(ImageFormat)
+Pixels = Annotated[float, positive(1e4)]
+Count = Annotated[int, within(1, 10**6)]
+InputSide = Annotated[int, within(32, 8192)]  # pixels
 
 
 @dataclass(frozen=True)
 class InputConfig:
     """`[input]`: reading sequences whose left and right frames are paired by their stamps."""
 
-    stereo_stamp_tolerance: float = setting(POSITIVE)
+    stereo_stamp_tolerance: Annotated[float, positive(10.0)]  # s
 
 
 @dataclass(frozen=True)
 class ClassConfig:
-    num_classes: int = setting(at_least(1))
-    tag_confusion_diagonal: float = setting(FRACTION)
+    num_classes: Annotated[int, within(1, 1000)]
+    tag_confusion_diagonal: Annotated[float, FRACTION]
 
 
 @dataclass(frozen=True)
 class AprilTagConfig:
     enabled: bool
-    family: str = setting(one_of("tag36h11"))
-    size: float = setting(POSITIVE)
-    decimate: float = setting(at_least(1.0))
-    blur: float = setting(at_least(0.0))
+    family: Literal["tag36h11"]
+    size: Annotated[float, positive(100.0)]  # m
+    decimate: Annotated[float, within(1.0, 16.0)]
+    blur: Annotated[float, within(0.0, 100.0)]
     refine_edges: bool
-    decode_sharpening: float = setting(at_least(0.0))
-    max_hamming: int = setting(at_least(0))
-    min_decision_margin: float = setting(at_least(0.0))
-    full_score_margin: float = setting(POSITIVE)
-    corner_sigma: float = setting(POSITIVE)
-    right_search_margin: int = setting(at_least(0))
-    max_row_error: float = setting(POSITIVE)
-    min_disparity: float = setting(POSITIVE)
+    decode_sharpening: Annotated[float, within(0.0, 100.0)]
+    max_hamming: Annotated[int, within(0, 3)]
+    min_decision_margin: Annotated[float, within(0.0, 1e4)]
+    full_score_margin: Annotated[float, positive(1e4)]
+    corner_sigma: Pixels
+    right_search_margin: Annotated[int, within(0, 10**4)]
+    max_row_error: Pixels
+    min_disparity: Pixels
 
 
 @dataclass(frozen=True)
 class VoConfig:
-    max_features: int = setting(at_least(10))
-    fast_threshold: int = setting(at_least(1))
-    feature_cell: int = setting(at_least(4))
-    tracking_window: int = setting(at_least(5))
-    tracking_levels: int = setting(at_least(0))
-    stereo_levels: int = setting(at_least(0))
-    tracking_iterations: int = setting(at_least(1))
-    max_backward_error: float = setting(POSITIVE)
+    max_features: Annotated[int, within(10, 10**6)]
+    fast_threshold: Annotated[int, within(1, 255)]
+    feature_cell: Annotated[int, within(4, 4096)]
+    tracking_window: Annotated[int, within(5, 255)]
+    tracking_levels: Annotated[int, within(0, 16)]
+    stereo_levels: Annotated[int, within(0, 16)]
+    tracking_iterations: Annotated[int, within(1, 10**4)]
+    max_backward_error: Pixels
     temporal_backward_check: bool
-    max_row_error: float = setting(POSITIVE)
-    min_disparity: float = setting(POSITIVE)
-    max_disparity: float = setting(POSITIVE)
-    ransac_threshold: float = setting(POSITIVE)
-    ransac_iterations: int = setting(at_least(1))
-    refine_iterations: int = setting(at_least(1))
-    min_inliers: int = setting(at_least(6))
-    min_inlier_fraction: float = setting(between(0.0, 1.0))
-    recovery_features: int = setting(at_least(10))
-    recovery_ratio: float = setting(FRACTION)
-    pixel_sigma: float = setting(POSITIVE)
-    min_residual_scale: float = setting(FRACTION)
-    min_sigma_rotation: float = setting(POSITIVE)
-    min_sigma_translation: float = setting(POSITIVE)
-    translation_sigma_fraction: float = setting(at_least(0.0))
-    lost_sigma_rotation: float = setting(POSITIVE)
-    lost_sigma_translation: float = setting(POSITIVE)
+    max_row_error: Pixels
+    min_disparity: Pixels
+    max_disparity: Pixels
+    ransac_threshold: Pixels
+    ransac_iterations: Count
+    refine_iterations: Annotated[int, within(1, 1000)]
+    min_inliers: Annotated[int, within(6, 10**6)]
+    min_inlier_fraction: Annotated[float, UNIT]
+    recovery_features: Annotated[int, within(10, 10**6)]
+    recovery_ratio: Annotated[float, FRACTION]
+    pixel_sigma: Pixels
+    min_residual_scale: Annotated[float, FRACTION]
+    min_sigma_rotation: Annotated[float, positive(10.0)]  # rad
+    min_sigma_translation: Annotated[float, positive(1e3)]  # m
+    translation_sigma_fraction: Annotated[float, within(0.0, 1000.0)]
+    lost_sigma_rotation: Annotated[float, positive(10.0)]  # rad
+    lost_sigma_translation: Annotated[float, positive(1e6)]  # m
 
 
 @dataclass(frozen=True)
 class KeyframeConfig:
-    min_translation: float = setting(POSITIVE)
-    min_rotation: float = setting(POSITIVE)
-    max_frames: int = setting(at_least(1))
-    min_tracked_fraction: float = setting(between(0.0, 1.0, high_open=True))
+    min_translation: Annotated[float, positive(1e3)]  # m
+    min_rotation: Annotated[float, positive(10.0)]  # rad
+    max_frames: Count
+    min_tracked_fraction: Annotated[float, within(0.0, 1.0, high_open=True)]
 
 
 @dataclass(frozen=True)
 class OutputConfig:
     images: bool
-    image_format: str = setting(one_of(*IMAGE_FORMATS))
-    jpeg_quality: int = setting(between(1, 100))
-    truth_min_iou: float = setting(FRACTION)
+    image_format: ImageFormat
+    jpeg_quality: Annotated[int, within(1, 100)]
+    truth_min_iou: Annotated[float, FRACTION]
 
 
 @dataclass(frozen=True)
 class StereoRangeConfig:
     """`[objects.stereo]`: stereo range inside a box (pipeline/frontend/stereo_range.py)."""
 
-    max_disparity: int = setting(at_least(16))
-    block_size: int = setting(at_least(1))
-    uniqueness_ratio: int = setting(between(0, 100))
-    margin: int = setting(at_least(0))
-    central_fraction: float = setting(FRACTION)
-    min_valid_fraction: float = setting(FRACTION)
-    min_disparity: float = setting(POSITIVE)
-    disparity_sigma: float = setting(POSITIVE)
-    center_sigma: float = setting(POSITIVE)
-    center_sigma_fraction: float = setting(at_least(0.0))
-    surface_to_centre: float = setting(at_least(0.0))
-    surface_to_centre_sigma: float = setting(at_least(0.0))
+    max_disparity: Annotated[int, within(16, 4096)]
+    block_size: Annotated[int, within(1, 255)]
+    uniqueness_ratio: Annotated[int, within(0, 100)]
+    margin: Annotated[int, within(0, 10**4)]
+    central_fraction: Annotated[float, FRACTION]
+    min_valid_fraction: Annotated[float, FRACTION]
+    min_disparity: Pixels
+    disparity_sigma: Pixels
+    center_sigma: Pixels
+    center_sigma_fraction: Annotated[float, within(0.0, 1000.0)]
+    surface_to_centre: Annotated[float, within(0.0, 100.0)]  # m
+    surface_to_centre_sigma: Annotated[float, within(0.0, 100.0)]  # m
 
 
 @dataclass(frozen=True)
@@ -116,22 +123,20 @@ class ObjectDetectorConfig:
     """`[objects]`: the object-box stage (pipeline/frontend/objects.py)."""
 
     enabled: bool
-    model: str = setting(ANY)  # a bare file name is looked up in the models directory
-    class_names_file: str = setting(ANY)
-    input_size: tuple[int, int] = setting(at_least(32))
-    nms_iou: float = setting(FRACTION)
-    nested_fraction: float = setting(FRACTION)
-    nested_sigmas: float = setting(POSITIVE)
-    num_threads: int = setting(at_least(1))
-    classes: tuple[str, ...] = setting(ANY)
-    class_map: dict  # detector class name -> one of `classes`
+    model: str  # a bare file name is looked up in the models directory
+    class_names_file: str
+    input_size: tuple[InputSide, InputSide]
+    nms_iou: Annotated[float, FRACTION]
+    nested_fraction: Annotated[float, FRACTION]
+    nested_sigmas: Annotated[float, positive(1000.0)]
+    num_threads: Annotated[int, within(1, 1024)]
+    classes: tuple[str, ...]
+    class_map: dict[str, str]  # detector class name -> one of `classes`
     thresholds: dict  # model file name -> the score a box must reach
     stereo: StereoRangeConfig
 
     @property
     def model_path(self) -> Path:
-        from pipeline.frontend.objects import resolve_model_path
-
         return resolve_model_path(self.model)
 
     @property

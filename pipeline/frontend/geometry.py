@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, StereoIntrinsics
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.geometry import (  # noqa: F401 - the shared math, re-exported for the stages
     adjoint,
     bearing_elevation_range,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, StereoIntrinsics
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend.geometry import invert_pose, rotation_from_quaternion
 from pipeline.log import GroundTruthLandmark, GroundTruthLandmarks

@@ -24,35 +24,21 @@ import ast
 import dataclasses
 import logging
 import math
-import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.errors import InputError
 from pipeline.frontend.config import ObjectDetectorConfig, StereoRangeConfig
+from pipeline.frontend.model_files import MODELS_ENV
 from pipeline.frontend.stereo_range import BBox, BoxRange, measure_box
 
 log = logging.getLogger(__name__)
 
-MODELS_ENV = "MMSLAM_MODELS"
 DEFAULT_MODEL = "yolov3-tiny.onnx"
 LETTERBOX_FILL = 127  # darknet pads with 0.5 grey
-
-
-def models_dir() -> Path:
-    """Where installed models live: `$MMSLAM_MODELS`, else `<sys.prefix>/share/mmslam/models`."""
-    env = os.environ.get(MODELS_ENV)
-    return Path(env).expanduser() if env else Path(sys.prefix) / "share" / "mmslam" / "models"
-
-
-def resolve_model_path(name: str) -> Path:
-    """A bare file name is looked up in the models directory; any other path is used as is."""
-    path = Path(name).expanduser()
-    return models_dir() / path if path.parent == Path(".") else path
 
 
 # --- pre- and post-processing: pure functions ------------------------------------------------

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.datasets.kitti import BODY_FROM_CAMERA, StereoIntrinsics
+from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.frontend.config import StereoRangeConfig
 from pipeline.frontend.geometry import (
     camera_point_measurement,

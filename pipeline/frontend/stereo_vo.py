@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from pipeline.datasets.kitti import StereoIntrinsics
+from pipeline.datasets.camera import StereoIntrinsics
 from pipeline.frontend.config import KeyframeConfig, VoConfig
 from pipeline.frontend.geometry import (
     camera_to_body_motion,
@@ -47,6 +47,7 @@ from pipeline.frontend.geometry import (
     projection_jacobian,
     rotation_angle,
     se3_exp,
+    skew,
     stereo_pixel_covariance,
     triangulate,
     triangulation_jacobian,
@@ -257,7 +258,7 @@ def refine_pose(
         projection = projection_jacobian(safe, intrinsics)  # (N, 2, 3)
         # d(local)/d(xi) for T Exp(xi): [skew(local), -I]; d(local)/dP = R^T.
         d_local = np.zeros((len(points), 3, 6))
-        d_local[:, :, :3] = _skew_batch(safe)
+        d_local[:, :, :3] = skew(safe)
         d_local[:, :, 3:] = -np.eye(3)
         jacobian = projection @ d_local  # (N, 2, 6)
         point_jacobian = projection @ rotation.T
@@ -310,15 +311,6 @@ def fit_covariance(
     if not np.all(np.isfinite(covariance)):
         return np.eye(6)
     return 0.5 * (covariance + covariance.T)
-
-
-def _skew_batch(vectors: np.ndarray) -> np.ndarray:
-    out = np.zeros((len(vectors), 3, 3))
-    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
-    out[:, 0, 1], out[:, 0, 2] = -z, y
-    out[:, 1, 0], out[:, 1, 2] = z, -x
-    out[:, 2, 0], out[:, 2, 1] = -y, x
-    return out
 
 
 def solve_pnp(

@@ -1,8 +1,9 @@
 """The bounds a contract-v1 log must keep, beyond the contract's own rules, in one table.
 
 Each is wide enough for any real log (simulated, KITTI, the front-end's) and tight enough that
-nothing past it can overflow, exhaust memory or break the back-end's numerics. The README's
-log-format section lists the same bounds; the reader names the bound a log breaks.
+nothing past it can overflow, exhaust memory or break the back-end's numerics. The messages'
+declarations (`messages.py`) hold their fields to these; the reader names the bound a log
+breaks.
 """
 
 from __future__ import annotations

@@ -1,8 +1,20 @@
-"""Topics, schema names and the JSON Schemas written into every log's MCAP channels."""
+"""Topics, schema names and the JSON Schemas written into every log's MCAP channels: the
+contract's from the messages' declarations (`messages.py`), Foxglove's image schema as
+Foxglove writes it."""
 
 from __future__ import annotations
 
 import json
+
+import msgspec
+
+from pipeline.log.messages import (
+    Detections,
+    GroundTruthLandmarks,
+    GroundTruthPose,
+    Odometry,
+    StereoCalibration,
+)
 
 ODOMETRY = "/odometry"
 DETECTIONS = "/detections"
@@ -16,139 +28,20 @@ IMAGE_TOPICS = (LEFT_IMAGE, RIGHT_IMAGE)
 # (pipeline/foxglove/log_topics.py): the log as Foxglove shows it; readers skip them.
 FOXGLOVE_PREFIX = "/foxglove/"
 
-_NUM = {"type": "number"}
-_INT = {"type": "integer"}
-
-
-def _array(n: int) -> dict:
-    return {"type": "array", "items": _NUM, "minItems": n, "maxItems": n}
-
-
-_RELATIVE_POSE = {
-    "type": "object",
-    "required": ["translation", "rotation", "covariance"],
-    "properties": {"translation": _array(3), "rotation": _array(4), "covariance": _array(36)},
+# The contract's topics: schema name and the message each carries (`messages.py`).
+MESSAGES: dict[str, tuple[str, type]] = {
+    topic: (f"mmslam.{cls.__name__}", cls)
+    for topic, cls in (
+        (ODOMETRY, Odometry),
+        (DETECTIONS, Detections),
+        (GT_POSE, GroundTruthPose),
+        (GT_LANDMARKS, GroundTruthLandmarks),
+        (CALIBRATION, StereoCalibration),
+    )
 }
-
-_DETECTION = {
-    "type": "object",
-    "required": [
-        "class_id",
-        "score",
-        "bearing",
-        "elevation",
-        "range",
-        "covariance",
-        "source",
-    ],
-    "properties": {
-        "class_id": _INT,
-        "score": {"type": "number", "minimum": 0, "maximum": 1},
-        "bearing": _NUM,
-        "elevation": _NUM,
-        "range": {"type": "number", "exclusiveMinimum": 0},
-        "covariance": _array(9),
-        "source": {"enum": ["apriltag", "bbox"]},
-        "bbox": _array(4),
-        "relative_pose": _RELATIVE_POSE,
-        "truth_landmark_id": _INT,
-    },
-}
-
+# Topic -> (schema name, JSON Schema): the contract's made from their declarations.
 SCHEMAS: dict[str, tuple[str, dict]] = {
-    ODOMETRY: (
-        "mmslam.Odometry",
-        {
-            "type": "object",
-            "required": [
-                "stamp_ns",
-                "from_index",
-                "to_index",
-                "translation",
-                "rotation",
-                "covariance",
-            ],
-            "properties": {
-                "stamp_ns": _INT,
-                "from_index": _INT,
-                "to_index": _INT,
-                "translation": _array(3),
-                "rotation": _array(4),
-                "covariance": _array(36),
-            },
-        },
-    ),
-    DETECTIONS: (
-        "mmslam.Detections",
-        {
-            "type": "object",
-            "required": ["stamp_ns", "pose_index", "detections"],
-            "properties": {
-                "stamp_ns": _INT,
-                "pose_index": _INT,
-                "detections": {"type": "array", "items": _DETECTION},
-            },
-        },
-    ),
-    GT_POSE: (
-        "mmslam.GroundTruthPose",
-        {
-            "type": "object",
-            "required": ["stamp_ns", "pose_index", "translation", "rotation"],
-            "properties": {
-                "stamp_ns": _INT,
-                "pose_index": _INT,
-                "translation": _array(3),
-                "rotation": _array(4),
-            },
-        },
-    ),
-    GT_LANDMARKS: (
-        "mmslam.GroundTruthLandmarks",
-        {
-            "type": "object",
-            "required": ["stamp_ns", "landmarks"],
-            "properties": {
-                "stamp_ns": _INT,
-                "landmarks": {
-                    "type": "array",
-                    "items": {
-                        "type": "object",
-                        "required": ["id", "class_id", "position"],
-                        "properties": {"id": _INT, "class_id": _INT, "position": _array(3)},
-                    },
-                },
-            },
-        },
-    ),
-    CALIBRATION: (
-        "mmslam.StereoCalibration",
-        {
-            "type": "object",
-            "required": [
-                "stamp_ns",
-                "width",
-                "height",
-                "fx",
-                "fy",
-                "cx",
-                "cy",
-                "baseline",
-                "body_from_camera",
-            ],
-            "properties": {
-                "stamp_ns": _INT,
-                "width": _INT,
-                "height": _INT,
-                "fx": _NUM,
-                "fy": _NUM,
-                "cx": _NUM,
-                "cy": _NUM,
-                "baseline": _NUM,
-                "body_from_camera": _array(16),
-            },
-        },
-    ),
+    topic: (name, msgspec.json.schema(cls)) for topic, (name, cls) in MESSAGES.items()
 }
 
 # Foxglove's own schema, so that image topics open in Foxglove and Rerun as they are.

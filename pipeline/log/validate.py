@@ -1,8 +1,9 @@
 """The contract's checks on a log, fed one message at a time in log order.
 
-`LogValidator` decodes each message (`codec.py` checks its fields) and checks what spans
-messages: every channel of a contract topic has the right schema and encodings (other topics,
-such as the Foxglove mirror's `/foxglove/*` in protobuf, are skipped); stamps equal the
+`LogValidator` decodes each message (`codec.py` checks its fields as `messages.py` declares
+them) and checks what spans messages: every channel of a contract topic has the right schema
+and encodings (other topics, such as the Foxglove mirror's `/foxglove/*` in protobuf, are
+skipped); stamps equal the
 MCAP log time and never go back within a topic, odometry's strictly forward; odometry links
 pose i to i + 1; a pose's ground truth is given once; one ground-truth landmark message and
 one calibration at most; and, at the end, every pose index named is reached by odometry. It
@@ -12,6 +13,7 @@ any length.
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
@@ -48,17 +50,13 @@ class LogValidator:
         self.path = path
         self.metadata = metadata
         self.odometry_count = 0
-        self._decoders: dict[str, Callable[[dict], Any]] = {
-            schemas.ODOMETRY: codec.decode_odometry,
-            schemas.DETECTIONS: lambda o: codec.decode_detections(o, metadata.num_classes),
-            schemas.GT_POSE: codec.decode_ground_truth_pose,
-            schemas.GT_LANDMARKS: lambda o: codec.decode_ground_truth_landmarks(
-                o, metadata.num_classes
-            ),
-            schemas.CALIBRATION: codec.decode_calibration,
-            schemas.LEFT_IMAGE: codec.decode_compressed_image,
-            schemas.RIGHT_IMAGE: codec.decode_compressed_image,
+        num_classes = metadata.num_classes
+        self._decoders: dict[str, Callable[[bytes], Any]] = {
+            topic: functools.partial(codec.decode, cls, num_classes=num_classes)
+            for topic, (_, cls) in schemas.MESSAGES.items()
         }
+        for topic in schemas.IMAGE_TOPICS:
+            self._decoders[topic] = codec.decode_compressed_image
         self._checked_channels: set[int] = set()
         self._last_stamp: dict[str, int] = {}
         self._gt_poses = PoseSet()
@@ -119,10 +117,7 @@ class LogValidator:
         if len(data) > cap:
             raise self.error(f"{len(data)} bytes, more than the {cap} allowed", topic, index)
         try:
-            obj = codec.parse_json(data)
-            if not isinstance(obj, dict):
-                raise ValueError("message is not a JSON object")
-            msg = decode(obj)
+            msg = decode(data)
         except ValueError as exc:
             raise self.error(str(exc), topic, index) from None
         if msg.stamp_ns != log_time:

@@ -14,7 +14,7 @@ import json
 import os
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from mcap.writer import CompressionType, Writer
 
@@ -24,25 +24,22 @@ from pipeline.log.mcap_stream import ChannelInfo
 from pipeline.log.messages import (
     METADATA_NAME,
     CompressedImage,
-    Detections,
-    GroundTruthLandmarks,
-    GroundTruthPose,
     LogMetadata,
-    Odometry,
-    StereoCalibration,
 )
 from pipeline.log.metadata import metadata_record, parse_metadata
 from pipeline.log.validate import LogValidator
 from pipeline.outputs import AtomicFile
 
-_ENCODERS = {
-    Odometry: (schemas.ODOMETRY, codec.encode_odometry),
-    Detections: (schemas.DETECTIONS, codec.encode_detections),
-    GroundTruthPose: (schemas.GT_POSE, codec.encode_ground_truth_pose),
-    GroundTruthLandmarks: (schemas.GT_LANDMARKS, codec.encode_ground_truth_landmarks),
-    StereoCalibration: (schemas.CALIBRATION, codec.encode_calibration),
-    CompressedImage: (None, codec.encode_compressed_image),
-}
+# The topic of each message type (images go to the one the caller names).
+_TOPICS: dict[type, str | None] = {cls: topic for topic, (_, cls) in schemas.MESSAGES.items()}
+_TOPICS[CompressedImage] = None
+
+
+def mcap_writer(file: BinaryIO) -> Writer:
+    """An MCAP writer as every mmslam file is written: zstd chunks, and CRCs over the chunks,
+    the data section (`DataEnd`, which mcap's writer leaves at 0 unless asked) and the summary,
+    so that a flipped bit anywhere is refused on reading."""
+    return Writer(file, compression=CompressionType.ZSTD, enable_crcs=True, enable_data_crcs=True)
 
 
 class LogWriter:
@@ -61,9 +58,7 @@ class LogWriter:
             raise self._refusal(f"metadata '{METADATA_NAME}': {exc}") from None
         self._validator = LogValidator(str(self.path), metadata)
         self._out = AtomicFile(self.path)
-        self._writer = Writer(
-            self._out.file, compression=CompressionType.ZSTD, enable_data_crcs=True
-        )
+        self._writer = mcap_writer(self._out.file)
         self._writer.start(profile="", library="mmslam")
         self._channels: dict[str, ChannelInfo] = {}
         self._counts: Counter[str] = Counter()
@@ -92,14 +87,13 @@ class LogWriter:
 
     def write(self, msg: Any, topic: str | None = None) -> None:
         """Write one message; `topic` is needed only for images (left or right)."""
-        default_topic, encode = _ENCODERS[type(msg)]
-        topic = topic or default_topic
+        topic = topic or _TOPICS[type(msg)]
         if topic is None:
             raise ValueError("images need a topic")
         index = self._counts[topic]
         self._counts[topic] += 1
         try:
-            data = json.dumps(encode(msg), separators=(",", ":"), allow_nan=False).encode()
+            data = json.dumps(codec.encode(msg), separators=(",", ":"), allow_nan=False).encode()
         except ValueError:
             raise self._refusal(f"{topic} message {index}: holds a non-finite number") from None
         channel = self._channel(topic)

@@ -1,31 +1,35 @@
 """Typed viewing configuration: defaults in configs/viz.toml (`[viz]`), overridden by a file.
 
-Each setting's valid range is declared beside it (`pipeline/settings.py`) and checked at load.
+Each setting's type and valid range are declared beside it (`pipeline/settings.py`) and
+checked at load.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 from pipeline import settings
-from pipeline.settings import POSITIVE, PROBABILITY, at_least, between, setting
+from pipeline.settings import PROBABILITY, positive, within
+
+Every = Annotated[int, within(1, 10**6)]
 
 
 @dataclass(frozen=True)
 class VizConfig:
-    refresh_every: int = setting(at_least(1))
-    refresh_move_m: float = setting(at_least(0.0))
+    refresh_every: Every
+    refresh_move_m: Annotated[float, within(0.0, 1e6)]
     keyframe_marginals: bool
     final_marginals: bool
-    ellipsoid_confidence: float = setting(PROBABILITY)
-    image_every: int = setting(at_least(0))
-    jpeg_quality: int = setting(between(1, 100))
-    robot_axis_length_m: float = setting(POSITIVE)
-    smoothing_window: int = setting(at_least(1))
-    plot_window: int = setting(at_least(0))
-    warn_changes_at_once: int = setting(at_least(1))
-    warn_changes_per_detection: int = setting(at_least(1))
+    ellipsoid_confidence: Annotated[float, PROBABILITY]
+    image_every: Annotated[int, within(0, 10**6)]
+    jpeg_quality: Annotated[int, within(1, 100)]
+    robot_axis_length_m: Annotated[float, positive(1000.0)]
+    smoothing_window: Every
+    plot_window: Annotated[int, within(0, 10**6)]
+    warn_changes_at_once: Every
+    warn_changes_per_detection: Every
 
 
 @dataclass(frozen=True)

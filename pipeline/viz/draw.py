@@ -20,7 +20,7 @@ import numpy as np
 from pipeline.backend.association import chi2_gate
 from pipeline.backend.candidates import Candidates
 from pipeline.backend.hypotheses import NULL, AssociationRecord
-from pipeline.geometry import rotation_from_quaternion
+from pipeline.geometry import quaternion_from_rotation, rotation_from_quaternion
 from pipeline.log.messages import Detection, GroundTruthPose, Odometry
 
 # Qualitative colours for the first classes (chosen to stay apart from the trajectory and
@@ -91,27 +91,6 @@ def position_covariance(covariance: np.ndarray, rotation: np.ndarray | None = No
     return R @ covariance[3:, 3:] @ R.T
 
 
-def quaternion_xyzw(R: np.ndarray) -> np.ndarray:
-    """A rotation matrix to [x, y, z, w] (Shepperd's method: divide by the largest of the four
-    squared components). Here, not scipy's: it is called per landmark per keyframe."""
-    R = np.asarray(R, dtype=float)
-    trace = R[0, 0] + R[1, 1] + R[2, 2]
-    squares = [1 + 2 * R[0, 0] - trace, 1 + 2 * R[1, 1] - trace, 1 + 2 * R[2, 2] - trace, 1 + trace]
-    k = int(np.argmax(squares))
-    q = np.empty(4)
-    q[k] = 0.5 * np.sqrt(max(squares[k], 0.0))
-    s = 0.25 / q[k]
-    if k == 3:
-        q[:3] = s * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    elif k == 0:
-        q[1:] = s * np.array([R[0, 1] + R[1, 0], R[0, 2] + R[2, 0], R[2, 1] - R[1, 2]])
-    elif k == 1:
-        q[[0, 2, 3]] = s * np.array([R[0, 1] + R[1, 0], R[1, 2] + R[2, 1], R[0, 2] - R[2, 0]])
-    else:
-        q[[0, 1, 3]] = s * np.array([R[0, 2] + R[2, 0], R[1, 2] + R[2, 1], R[1, 0] - R[0, 1]])
-    return q if q[3] >= 0 else -q
-
-
 @functools.cache
 def ellipsoid_scale(confidence: float) -> float:
     """Standard deviations to the surface of the ellipsoid holding `confidence` (3 dof)."""
@@ -127,7 +106,7 @@ def ellipsoid(covariance: np.ndarray, confidence: float) -> tuple[np.ndarray, np
     if np.linalg.det(vectors) < 0:  # eigh may return a reflection; the axes are the same
         vectors[:, 0] = -vectors[:, 0]
     half_sizes = ellipsoid_scale(confidence) * np.sqrt(np.clip(values, 0.0, None))
-    return half_sizes, quaternion_xyzw(vectors)
+    return half_sizes, quaternion_from_rotation(vectors)
 
 
 @dataclass(frozen=True)

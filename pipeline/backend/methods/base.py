@@ -12,6 +12,7 @@ from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import class_posterior_update
 from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
+from pipeline.backend.decisions import null_cost
 from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
@@ -213,6 +214,14 @@ class MixtureMethod(AssociationMethod):
         index = self._index_of.get(id(record))
         if index is not None and index not in self._by_key[key]:
             self._by_key[key].append(index)
+
+    def null_cost(self, m: Measurement, null_weight: float) -> float:
+        """The null hypothesis's cost for detection `m`, at prior weight `null_weight`
+        (`decisions.null_cost` with the `[association]` settings)."""
+        a = self.config.association
+        return null_cost(
+            a.null_model, null_weight, a.null_sigma, a.null_crossover_sq, m.dim, m.log_normaliser
+        )
 
     def affected(self, moved: set[int]) -> list[AssociationRecord]:
         """Tracked records with a variable among `moved`, in creation order."""

@@ -41,7 +41,7 @@ from pipeline.backend.dcsam_model import (
     mode_constants,
     new_landmark_log_volume,
 )
-from pipeline.backend.decisions import MeasurementSpace, null_cost
+from pipeline.backend.decisions import MeasurementSpace
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.measurements import Measurement
@@ -88,11 +88,7 @@ class DiscreteContinuous(MixtureMethod):
 
     def null_nll(self, m: Measurement) -> float:
         """The null mode's cost: mm-nh's."""
-        a = self.config.association
-        return null_cost(
-            a.null_model, a.null_weight, a.null_sigma, a.null_crossover_sq, m.dim,
-            m.log_normaliser,
-        )  # fmt: skip
+        return self.null_cost(m, self.null_weight)
 
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         return self.associate_keyframe([m], [candidates])[0]

@@ -26,7 +26,6 @@ from pipeline.backend.decisions import (
     clutter_log_density,
     first_component,
     loop_pairs_needed,
-    null_cost,
 )
 from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
 from pipeline.backend.joint_association import (
@@ -67,13 +66,7 @@ class MaxMixture(MixtureMethod):
 
     def null_nll(self, m: Measurement) -> float:
         """The null component's cost for this detection (inf without a null hypothesis)."""
-        if self.null_weight <= 0:
-            return math.inf
-        a = self.config.association
-        return null_cost(
-            a.null_model, self.null_weight, a.null_sigma, a.null_crossover_sq, m.dim,
-            m.log_normaliser,
-        )  # fmt: skip
+        return math.inf if self.null_weight <= 0 else self.null_cost(m, self.null_weight)
 
     def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
         if len(candidates) == 0:

@@ -303,3 +303,35 @@ def test_seeds_find_the_loop_a_search_too_large_to_finish_does_not():
     assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 50) == []
     merged = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 50, seeds=5)
     assert sorted(merged) == sorted(ps.pairs[p] for p in truth)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_set_grown_pair_by_pair_scores_as_its_covariance_says(seed):
+    """ChosenPairs, extended one pair at a time (as the search does), against the densities
+    computed directly from C_c = C + (c - 1) G G^T under each drift scale, on random sets."""
+    rng = np.random.default_rng(seed)
+    n, r = 6, 3
+    A = rng.normal(size=(3 * n, 3 * n))
+    covariance = A @ A.T + 0.5 * np.eye(3 * n)
+    drift = rng.normal(size=(3 * n, r))
+    pairs = PairSet(
+        pairs=[(10 + p, p) for p in range(n)],
+        differences=rng.normal(size=(n, 3)),
+        covariance=covariance,
+        log_prior=np.zeros(n),
+        loop=np.zeros(n, bool),
+        drift=drift,
+        scales=np.array([1.0, 2.5, 9.0]),
+        log_scale_weights=np.log(np.array([0.5, 0.3, 0.2])),
+    )
+    chosen = [int(p) for p in rng.permutation(n)[:4]]
+    index = np.concatenate([np.arange(3 * p, 3 * p + 3) for p in chosen])
+    d = pairs.differences[chosen].ravel()
+    log_lik, d2 = pairs.scale_log_likelihoods(chosen)
+    for k, c in enumerate(pairs.scales):
+        C_c = covariance[np.ix_(index, index)] + (c - 1.0) * drift[index] @ drift[index].T
+        assert d2[k] == pytest.approx(d @ np.linalg.solve(C_c, d), rel=1e-9)
+        assert log_lik[k] == pytest.approx(gaussian_log_density(d, C_c), rel=1e-9)
+    mixed, smallest = pairs.log_likelihood(chosen)
+    assert mixed == pytest.approx(np.logaddexp.reduce(pairs.log_scale_weights + log_lik))
+    assert smallest == pytest.approx(d2.min())

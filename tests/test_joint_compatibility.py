@@ -335,3 +335,26 @@ def test_a_set_grown_pair_by_pair_scores_as_its_covariance_says(seed):
     mixed, smallest = pairs.log_likelihood(chosen)
     assert mixed == pytest.approx(np.logaddexp.reduce(pairs.log_scale_weights + log_lik))
     assert smallest == pytest.approx(d2.min())
+
+
+def test_sets_scored_together_score_as_each_alone():
+    """The search scores a source's pairs in one stack: the same as one set at a time."""
+    rng = np.random.default_rng(7)
+    n = 5
+    A = rng.normal(size=(3 * n, 3 * n))
+    pairs = PairSet(
+        pairs=[(10 + p, p) for p in range(n)],
+        differences=rng.normal(size=(n, 3)),
+        covariance=A @ A.T + 0.5 * np.eye(3 * n),
+        log_prior=np.zeros(n),
+        loop=np.zeros(n, bool),
+        drift=rng.normal(size=(3 * n, 2)),
+        scales=np.array([1.0, 4.0]),
+        log_scale_weights=np.log(np.array([0.7, 0.3])),
+    )
+    sets = [[0, 2, 4], [1, 2, 3], [4, 0, 1]]
+    together, smallest = pairs.log_likelihoods(sets)
+    for k, chosen in enumerate(sets):
+        alone = pairs.log_likelihood(chosen)
+        assert together[k] == pytest.approx(alone[0], rel=1e-12)
+        assert smallest[k] == pytest.approx(alone[1], rel=1e-12)

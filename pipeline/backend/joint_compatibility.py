@@ -84,37 +84,53 @@ class PairSet:
 
     def scale_log_likelihoods(self, chosen: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """(log N(d; 0, C_c), d^T C_c^-1 d) under each scale c of the stacked differences d
-        of pairs `chosen`. One Cholesky factor L of C serves every scale: with y = L^-1 d and
-        Z = L^-1 G, whose Z^T Z = V diag(lambda) V^T, and w = V^T Z^T y,
-        d^T C_c^-1 d = |y|^2 - sum (c - 1) w^2 / (1 + (c - 1) lambda) and
-        log det C_c = log det C + sum log(1 + (c - 1) lambda)."""
+        of pairs `chosen`."""
         chosen = list(chosen)  # a tuple would index numpy arrays along several axes
         if not chosen:
             return np.zeros(len(self.scales)), np.zeros(len(self.scales))
-        index = self._index(chosen)
-        L = np.linalg.cholesky(self.covariance[np.ix_(index, index)])
-        d = self.differences[chosen].ravel()
-        log_det = np.full(len(self.scales), 2.0 * float(np.sum(np.log(np.diag(L)))))
+        log_lik, d2 = self.scale_log_likelihoods_of([chosen])
+        return log_lik[0], d2[0]
+
+    def scale_log_likelihoods_of(self, sets: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+        """`scale_log_likelihoods` of several sets of pairs of one size at once, (sets, scales)
+        each: numpy's linear algebra over a stack, one call for all (a search's children).
+
+        One Cholesky factor L of C serves every scale: with y = L^-1 d and Z = L^-1 G, whose
+        Z^T Z = V diag(lambda) V^T, and w = V^T Z^T y,
+        d^T C_c^-1 d = |y|^2 - sum (c - 1) w^2 / (1 + (c - 1) lambda) and
+        log det C_c = log det C + sum log(1 + (c - 1) lambda)."""
+        index = np.array([self._index(chosen) for chosen in sets])  # (k, m)
+        L = np.linalg.cholesky(self.covariance[index[:, :, None], index[:, None, :]])
+        d = self.differences[np.array(sets)].reshape(len(sets), -1)  # (k, m)
+        log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)  # (k,)
+        log_det = np.repeat(log_det[:, None], len(self.scales), axis=1)  # (k, scales)
         if self.drift is None:
-            y = np.linalg.solve(L, d)
-            d2 = np.full(len(self.scales), float(y @ y))
+            y = np.linalg.solve(L, d[:, :, None])[:, :, 0]
+            d2 = np.repeat(np.einsum("ki,ki->k", y, y)[:, None], len(self.scales), axis=1)
         else:
-            solved = np.linalg.solve(L, np.column_stack([d, self.drift[index]]))
-            y, Z = solved[:, 0], solved[:, 1:]
-            lam, V = np.linalg.eigh(Z.T @ Z)
-            w = V.T @ (Z.T @ y)
-            grow = np.multiply.outer(self.scales - 1.0, np.clip(lam, 0.0, None))  # (scales, r)
-            d2 = float(y @ y) - np.sum((self.scales - 1.0)[:, None] * w**2 / (1.0 + grow), axis=1)
-            log_det = log_det + np.sum(np.log1p(grow), axis=1)
-        return -0.5 * (d2 + log_det + len(index) * LOG_2PI), d2
+            solved = np.linalg.solve(L, np.concatenate([d[:, :, None], self.drift[index]], 2))
+            y, Z = solved[:, :, 0], solved[:, :, 1:]
+            lam, V = np.linalg.eigh(np.swapaxes(Z, 1, 2) @ Z)  # (k, r), (k, r, r)
+            w = np.einsum("kji,kj->ki", V, np.einsum("kji,kj->ki", Z, y))  # V^T Z^T y
+            c = self.scales - 1.0
+            grow = c[None, :, None] * np.clip(lam, 0.0, None)[:, None, :]  # (k, scales, r)
+            yy = np.einsum("ki,ki->k", y, y)
+            d2 = yy[:, None] - np.sum(c[None, :, None] * w[:, None, :] ** 2 / (1.0 + grow), axis=2)
+            log_det = log_det + np.sum(np.log1p(grow), axis=2)
+        return -0.5 * (d2 + log_det + index.shape[1] * LOG_2PI), d2
 
     def log_likelihood(self, chosen: list[int]) -> tuple[float, float]:
         """(log of the mixture over `scales` of N(d; 0, C_c), the smallest d^T C_c^-1 d over
         the scales) of the stacked differences d of pairs `chosen`."""
         if not list(chosen):
             return 0.0, 0.0
-        log_lik, d2 = self.scale_log_likelihoods(chosen)
-        return float(np.logaddexp.reduce(self.log_scale_weights + log_lik)), float(np.min(d2))
+        log_lik, d2 = self.log_likelihoods([list(chosen)])
+        return float(log_lik[0]), float(d2[0])
+
+    def log_likelihoods(self, sets: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
+        """`log_likelihood` of several non-empty sets of pairs of one size, (sets,) each."""
+        log_lik, d2 = self.scale_log_likelihoods_of(sets)
+        return np.logaddexp.reduce(self.log_scale_weights + log_lik, axis=1), np.min(d2, axis=1)
 
     def score(self, chosen: list[int]) -> float:
         chosen = list(chosen)
@@ -231,16 +247,15 @@ class _Search:
         if depth == len(self.options):
             self.best, self.best_score = tuple(chosen), score
             return
-        for p in self.options[depth]:
-            a, b = self.pair_set.pairs[p]
-            if a in used or b in used:
+        # This source's pairs scored together (one stack of linear algebra), then searched.
+        trials = [[*chosen, p] for p in self.options[depth] if not {*self.pair_set.pairs[p]} & used]
+        if trials:
+            log_liks, d2s = self.pair_set.log_likelihoods(trials)
+        for k, trial in enumerate(trials):
+            if d2s[k] > self.gates[len(trial)]:
                 continue
-            trial = [*chosen, p]
-            log_lik, d2 = self.pair_set.log_likelihood(trial)
-            if d2 > self.gates[len(trial)]:
-                continue
-            trial_score = log_lik + float(np.sum(self.pair_set.log_prior[trial]))
-            self._visit(depth + 1, trial, used | {a, b}, trial_score)
+            trial_score = float(log_liks[k]) + float(np.sum(self.pair_set.log_prior[trial]))
+            self._visit(depth + 1, trial, used | {*self.pair_set.pairs[trial[-1]]}, trial_score)
         if not (self.required and depth == 0):
             self._visit(depth + 1, chosen, used, score)
 

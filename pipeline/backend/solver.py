@@ -13,7 +13,10 @@ What did that on valid logs, and what the back-end does instead:
 - a planar log's height, roll and pitch, left to the odometry's 1 mm / 1 mrad a step: a random
   walk, metres after a thousand keyframes (now the plane is stated: `planar.py`);
 - covariances past what the factorisation keeps (a variance of 1e-14 beside 1e-4, a condition
-  number of 1e12), a kilometres-long step (now refused by the reader: `pipeline/log/limits`).
+  number of 1e12), a kilometres-long step (now refused by the reader: `pipeline/log/limits`);
+- a pose eliminated last in an update, its marginal metres wide against millimetre odometry
+  (now the landmarks go last, and an odometry-only update takes the newest landmark along:
+  `landmarks_last`).
 Should a graph still be refused, the whole graph is solved in batch (Levenberg-Marquardt) and
 iSAM2 starts again from that solution; if Cholesky refuses that too, with QR factorisation,
 which does without that test, and Dogleg steps, kept from there on. Marginals refused the same

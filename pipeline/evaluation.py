@@ -74,9 +74,15 @@ def landmark_truth_one_to_one(
     """Each true landmark stands for at most one estimated landmark, and each estimated one
     for at most one true one: the matching that keeps the most detections together (an
     assignment problem). A duplicate of a true landmark is left unmatched, so its detections
-    count as wrong, which majority voting hides."""
+    count as wrong, which majority voting hides.
+
+    The landmarks that share detections form small groups (a true landmark, its duplicates,
+    the lookalikes they were confused with): each group is matched on its own. One dense
+    matrix of every estimated by every true landmark held 8,400 x 8,400 entries on a 50,000-pose
+    log, gigabytes and the assignment's cubic time."""
     from scipy.optimize import linear_sum_assignment
     from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
 
     pairs = Counter(
         (landmark, truth)
@@ -89,15 +95,25 @@ def landmark_truth_one_to_one(
     true = sorted({t for _, t in pairs})
     row = {e: i for i, e in enumerate(estimated)}
     col = {t: i for i, t in enumerate(true)}
+    rows = np.array([row[e] for e, _ in pairs])
+    cols = np.array([col[t] for _, t in pairs])
     shared = coo_matrix(
-        (
-            [n for n in pairs.values()],
-            ([row[e] for e, _ in pairs], [col[t] for _, t in pairs]),
-        ),
-        shape=(len(estimated), len(true)),
-    ).toarray()
-    rows, cols = linear_sum_assignment(shared, maximize=True)
-    return {estimated[r]: true[c] for r, c in zip(rows, cols, strict=True) if shared[r, c] > 0}
+        (np.array(list(pairs.values())), (rows, cols)), shape=(len(estimated), len(true))
+    ).tocsr()
+    # the bipartite graph's groups: estimated landmarks first, then the true ones
+    n = len(estimated)
+    links = coo_matrix((np.ones(len(rows)), (rows, n + cols)), shape=(n + len(true),) * 2)
+    _, group = connected_components(links, directed=False)
+    order = np.argsort(group, kind="stable")
+    starts = np.flatnonzero(np.diff(group[order], prepend=-1))
+    matched: dict[int, int] = {}
+    for members in np.split(order, starts[1:]):
+        mine, theirs = members[members < n], members[members >= n] - n
+        block = shared[mine][:, theirs].toarray()
+        for r, c in zip(*linear_sum_assignment(block, maximize=True), strict=True):
+            if block[r, c] > 0:
+                matched[estimated[mine[r]]] = true[theirs[c]]
+    return matched
 
 
 def association_scores(truth_ids: list[int | None], landmark_ids: list[int]) -> dict[str, Any]:

@@ -75,8 +75,8 @@ def fallback_counts(fallbacks: list[SolverFallback]) -> dict[str, int]:
 def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -> gtsam.KeyGroupMap:
     """iSAM2's ordering of an update: the variables of its new factors last (GTSAM's default:
     they stay at the root, where the next update finds them), and among them the landmarks
-    after the poses; for an update without landmarks (odometry alone), `root` (a landmark the
-    caller has iSAM2 eliminate again) after its poses.
+    after the poses. `root`, given for an update without landmarks (odometry alone), is a
+    landmark the caller has iSAM2 eliminate again: it goes after the update's poses.
 
     The variable eliminated last keeps its marginal as its pivot. A pose's marginal grows with
     the drive (14 m across on a KITTI 05 run at noise x3) while its odometry pins it to
@@ -86,8 +86,7 @@ def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -
     measurements are centimetres, not millimetres, and the poses before it are then eliminated
     given it: their pivots are their information relative to it."""
     keys = list(graph.keyVector())
-    landmarks = [k for k in keys if not _is_pose_key(k)]
-    if not landmarks and root is not None:
+    if root is not None:
         keys.append(root)
     # CCOLAMD takes groups 0 .. n - 1 for n variables (those the update re-eliminates, at
     # least these): with two, the pose goes with the variables not constrained.

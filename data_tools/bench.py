@@ -1,6 +1,6 @@
 """`make bench`: speed and memory figures, printed; nothing here asserts anything about time.
 
-Parts (all by default, or `--only read,backend,mixture,viz,frontend`):
+Parts (all by default, or `--only read,backend,isam2,mixture,viz,frontend`):
 - read: `read_log` (the container, every message decoded and checked) on a 50,000-pose log
   (`simulate indoor-tags` chained, as `memory` makes it): best of three, wall and CPU time.
 - backend: known, ml, mm, mm-nh and dcsam on a `simulate kitti05-cars` log (2,761 poses, ~10,000
@@ -8,6 +8,8 @@ Parts (all by default, or `--only read,backend,mixture,viz,frontend`):
   and CPU time, ratio to known (CPU: the machine may be shared), to the log's real duration,
   back-end time per detection in every tenth of the log and its ratio to known's there, peak
   memory (VmHWM: each method in its own process), RMSE, landmarks.
+- isam2: GTSAM's iSAM2 alone on a bare Pose3 chain, ms per update as it grows
+  (`bench_isam2.py`: why a long log's last tenth costs more per keyframe than its first).
 - mixture: where the max-mixture picks its component, native factors swapped between iSAM2
   updates against a Python CustomFactor deciding at every linearisation.
 - viz: replay time without and with a Rerun recording.
@@ -212,7 +214,7 @@ def bench_read(out: Path, poses: int = 50_000, repeats: int = 3) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
-    parser.add_argument("--only", default="read,backend,mixture,viz,frontend")
+    parser.add_argument("--only", default="read,backend,isam2,mixture,viz,frontend")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument(
         "--long-poses", type=int, default=10000, help="poses of the long log (default 10,000)"
@@ -235,6 +237,10 @@ def main(argv: list[str] | None = None) -> int:
         bench_read(args.out)
     if "backend" in parts:
         bench_backend(args.out, tuple(args.methods.split(",")), args.long_poses)
+    if "isam2" in parts:
+        from data_tools import bench_isam2
+
+        bench_isam2.main([])
     if "mixture" in parts:
         bench_mixture(args.out)
     if "viz" in parts:

@@ -43,3 +43,11 @@ def test_every_profiled_second_is_counted_once_and_each_kind_is_seen():
     assert shares["gtsam"] > 0 and shares["numpy"] > 0
     # the Python loop is the longest part of `work` by far, and it is counted as Python
     assert shares["python"] > max(shares["gtsam"], shares["numpy"])
+
+
+def test_the_isam2_chain_bench_reports_each_stretch_of_the_chain():
+    from data_tools.bench_isam2 import chain_update_ms
+
+    rows = chain_update_ms(200, 50)
+    assert [poses for poses, _ in rows] == [50, 100, 150, 200]
+    assert all(np.isfinite(ms) and ms > 0 for _, ms in rows)

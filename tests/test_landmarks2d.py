@@ -136,3 +136,31 @@ def test_a_small_real_dataset_replays_with_its_associations(tmp_path):
         assert metrics["association_one_to_one"]["correct"] == 422
         assert metrics["solver_fallbacks"] == {"batch": 0, "qr": 0}
         assert "translation_error_m" not in metrics  # the file has no ground-truth poses
+
+
+def _positions(run: Path) -> np.ndarray:
+    rows = (run / "trajectory.tum").read_text().split("\n")
+    return np.array([[float(v) for v in row.split()[1:4]] for row in rows if row])
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_victoria_park_closes_its_loops_with_its_odometry_stated_as_it_drifts(tmp_path):
+    """The real Victoria Park, the given associations hidden from MM + NH, with
+    configs/victoria-park.toml (README, "Victoria Park"): its loops close as Known DA's do."""
+    log = tmp_path / "vp.mcap"
+    convert_landmarks2d(VICTORIA_PARK, log)
+    config = Path(__file__).resolve().parents[1] / "configs" / "victoria-park.toml"
+    runs = {"known": [], "mm-nh": ["--config", str(config)]}
+    for method, extra in runs.items():
+        out = tmp_path / method
+        assert (
+            cli_main(["replay", str(log), "--method", method, "--out", str(out), "-q", *extra]) == 0
+        )
+    metrics = json.loads((tmp_path / "mm-nh" / "metrics.json").read_text())
+    assert metrics["solver_fallbacks"] == {"batch": 0, "qr": 0}
+    given = metrics["association"]
+    assert given["correct"] >= 0.95 * sum(given.values())
+    assert metrics["num_landmarks"] <= 1.2 * 151  # with the defaults: 547
+    gap = _positions(tmp_path / "mm-nh") - _positions(tmp_path / "known")
+    assert np.sqrt(np.mean(np.sum(gap**2, axis=1))) <= 5.0  # with the defaults: 217 m

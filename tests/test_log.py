@@ -132,6 +132,16 @@ def test_a_failed_write_leaves_nothing_behind(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_steps_stating_one_covariance_share_it_and_others_keep_their_own(tmp_path):
+    wider = dict(odometry(2), covariance=[2.0 * v for v in I6])
+    messages = [*good_messages(), (topics.ODOMETRY, wider, None)]
+    log = read_log(write_raw(tmp_path / "a.mcap", messages))
+    first, second, third = log.odometry
+    assert second.covariance is first.covariance  # equal: one tuple held
+    assert third.covariance == tuple(2.0 * v for v in I6)
+    assert [o.to_index for o in log.odometry] == [1, 2, 3]
+
+
 def test_a_good_raw_log_reads(tmp_path):
     log = read_log(write_raw(tmp_path / "good.mcap", good_messages()))
     assert log.num_poses == 3 and log.num_detections == 3

@@ -117,6 +117,7 @@ class NoiseConfig:
     min_drift_windows: Keyframes
     drift_deadband: Annotated[float, within(1.0, 1e6)]
     drift_evidence: Annotated[float, within(0.0, 1e6)]
+    scale_from_loops: bool
 
 
 @dataclass(frozen=True)

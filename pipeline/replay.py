@@ -139,6 +139,7 @@ def compute_metrics(
                     "from": m.before,
                     "to": m.after,
                     "evidence_nats": round(m.evidence, 3),
+                    "source": m.source,
                 }
                 for m in result.odometry_moves
             ],

@@ -401,3 +401,15 @@ def test_drift_scale_belief_is_the_posterior_of_the_loops_closed():
     assert report["loops"] == 2
     np.testing.assert_allclose(report["scales"], [1.0, 10.0, 100.0], rtol=1e-12)  # powers of 10
     np.testing.assert_allclose(report["probabilities"], posterior / posterior.sum(), atol=1e-4)
+
+
+def test_drift_scale_belief_reads_its_likeliest_scale_against_the_current_one():
+    belief = DriftScaleBelief(0.5, 100.0, 2)  # scales 1, 10, 100
+    assert belief.reading(1.0) is None  # no loop yet
+    belief.observe(1.0, np.log([0.1, 0.2, 0.6]))  # posterior 0.2, 0.2, 0.6
+    scale, evidence = belief.reading(1.0)
+    assert scale == pytest.approx(100.0) and evidence == pytest.approx(np.log(0.6 / 0.2))
+    # at 10, scales 1 and 10 both stand for the current one
+    assert belief.reading(10.0)[1] == pytest.approx(np.log(0.6 / 0.4))
+    # at 100 the likeliest is the current one: no evidence for a move
+    assert belief.reading(100.0)[1] == pytest.approx(np.log(0.6))

@@ -28,7 +28,6 @@ CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 TYPED_FILES = {
     "default.toml": Config,
     "paper.toml": Config,
-    "victoria-park.toml": Config,
     "viz.toml": _VizFile,
     "frontend.toml": FrontendConfig,
     "landmarks2d.toml": Landmarks2dFile,

@@ -22,7 +22,10 @@ say, and its ratio against the current scale how sure they are (`drift_scale`). 
 landmarks do not pin (e near 0) says nothing, and says it quietly; a window across a loop
 closure (e near 1 along the loop's directions) says much.
 A slow odometry bias drifts more over a long window than white noise of the same step sigma:
-the scale found is the one at the window's length.
+the scale found is the one at the window's length. Such a bias can also hide from every window
+before a loop closes (the landmarks decide little of the heading: Victoria Park's yaw, 2-8 %),
+and a lone window across the first loop is read as an outlier; the loops the merges close say
+it directly (`DriftScaleBelief.reading`), and may raise the scale too.
 
 Pure functions and small accumulators; the pairings come from `methods/maxmixture.py`, the
 windows from `slam.py`, which applies the scales.
@@ -33,7 +36,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import gtsam
 import numpy as np
@@ -304,6 +307,17 @@ class DriftScaleBelief:
         self.log_weights = posterior - np.logaddexp.reduce(posterior)
         self.loops += 1
 
+    def reading(self, current: float) -> tuple[float, float] | None:
+        """The odometry's scale the loops closed so far make most probable, and its evidence
+        against `current`: the log-odds of that scale against all those at or below `current`
+        (nats; at most 0 when the most probable is one of them). None before the first loop."""
+        if self.loops == 0:
+            return None
+        above = self._above(current)
+        at_or_below = np.logaddexp.reduce(self.log_weights[~above]) if (~above).any() else -np.inf
+        best = int(np.argmax(self.log_weights))
+        return float(self.scales[best]), float(self.log_weights[best] - at_or_below)
+
     def report(self) -> dict[str, Any]:
         """For metrics.json: the loops observed, the scales and their probabilities now."""
         return {
@@ -315,13 +329,14 @@ class DriftScaleBelief:
 
 @dataclass(frozen=True)
 class OdometryScaleMove:
-    """One change of the odometry's variance scale: at which keyframe, from what to what, and
-    the windows' evidence for it (nats)."""
+    """One change of the odometry's variance scale: at which keyframe, from what to what, the
+    evidence for it (nats) and whose it is: the drift windows' or the closed loops'."""
 
     pose_index: int
     before: float
     after: float
     evidence: float
+    source: Literal["windows", "loops"] = "windows"
 
 
 def odometry_scale_move(

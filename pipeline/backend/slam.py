@@ -234,9 +234,9 @@ class Backend:
 
     def _rescale_noise(self, pose_index: int) -> bool:
         """Every few keyframes, the noise scales corrected: the measurement's by the latest
-        sure pairings, the odometry's by its drift against the estimate. Whether the odometry's
-        changed (every odometry factor is then reweighted, pending: the graph is to be solved
-        anew)."""
+        sure pairings, the odometry's by its drift against the estimate or by the loops closed
+        so far. Whether the odometry's changed (every odometry factor is then reweighted,
+        pending: the graph is to be solved anew)."""
         n = self.config.noise
         if not self.estimates_noise or pose_index % n.update_every:
             return False
@@ -244,34 +244,48 @@ class Backend:
         if measurement is not None:
             self.noise = updated(self.noise, measurement, (n.min_scale, n.max_scale), n.max_step)
             self.context.innovations.clear()  # they were whitened with the scales replaced
-        reading = self._drift_reading(pose_index)
         logger.debug("pose %d: noise scales %s", pose_index, self.noise)
-        if reading is None:
+        moves = self._odometry_moves(pose_index)
+        if not moves:
             return False
-        # Down only to undo a start set above the floor (odometry_scale): once the windows
-        # have raised the scale, a map bent by the loops it let close reads unevenly, and
-        # coming down again made kitti05-cars (noise x3, calibrated, seed 5) 10.4 -> 16.6 m.
-        odometry = odometry_scale_move(
-            self.noise.odometry,
-            *reading,
-            n.drift_deadband,
-            n.drift_evidence,
-            down=not any(m.after > m.before for m in self.odometry_moves),
-        )
-        if odometry is None:
-            return False
-        move = OdometryScaleMove(pose_index, self.noise.odometry, odometry, reading[1])
+        move = max(moves, key=lambda m: m.after)
         self.odometry_moves.append(move)
         logger.debug(
-            "pose %d: odometry scale %.3g -> %.3g (%.1f nats)",
+            "pose %d: odometry scale %.3g -> %.3g (%s, %.1f nats)",
             pose_index,
             move.before,
             move.after,
+            move.source,
             move.evidence,
         )
-        self.noise = NoiseScales(odometry, self.noise.measurement)
+        self.noise = NoiseScales(move.after, self.noise.measurement)
         self._reweight_odometry()
         return True
+
+    def _odometry_moves(self, pose_index: int) -> list[OdometryScaleMove]:
+        """The clear moves (`odometry_scale_move`) of the odometry's scale that the drift
+        windows ending now and the loops the merges closed so far say (the loops' only up: a
+        loop that closes at the current scale says little of a smaller one)."""
+        n, current = self.config.noise, self.noise.odometry
+        readings = []
+        windows = self._drift_reading(pose_index)
+        if windows is not None:
+            # Down only to undo a start set above the floor (odometry_scale): once the windows
+            # have raised the scale, a map bent by the loops it let close reads unevenly, and
+            # coming down again made kitti05-cars (noise x3, calibrated, seed 5) 10.4 -> 16.6 m.
+            down = not any(m.after > m.before for m in self.odometry_moves)
+            readings.append(("windows", *windows, down))
+        loops = None if self.merger is None else self.merger.drift_belief.reading(current)
+        if n.scale_from_loops and loops is not None:
+            readings.append(("loops", min(loops[0], n.max_scale), loops[1], False))
+        moves = []
+        for source, scale, evidence, down in readings:
+            after = odometry_scale_move(
+                current, scale, evidence, n.drift_deadband, n.drift_evidence, down=down
+            )
+            if after is not None:
+                moves.append(OdometryScaleMove(pose_index, current, after, evidence, source))
+        return moves
 
     def _drift_reading(self, pose_index: int) -> tuple[float, float] | None:
         """The odometry's scale its windows say and their evidence, with the windows ending

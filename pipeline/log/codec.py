@@ -200,7 +200,20 @@ def decode(cls: type[T], data: bytes, num_classes: int) -> T:
         parse_json(data)  # raises the reason: NaN, malformed, too deep
         raise ValueError(f"malformed JSON ({error})") from None
     verify(msg, num_classes)
-    return msg
+    return _rebuilt(msg)
+
+
+def _rebuilt(msg: T) -> T:
+    """`msg` built again by its own constructor, its nested messages too. msgspec gives each
+    instance it decodes a dict of its own; the constructor's instances share their class's keys
+    and take about 280 bytes less each (a 50,000-pose log read: 132 -> 94 MB)."""
+    _, nested = _plan(type(msg))
+    parts = {}
+    for name, many in nested:
+        value = getattr(msg, name)
+        if value is not None:
+            parts[name] = tuple(_rebuilt(v) for v in value) if many else _rebuilt(value)
+    return dataclasses.replace(msg, **parts)  # type: ignore[type-var]
 
 
 def _builtin(value: Any) -> Any:

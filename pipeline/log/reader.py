@@ -4,14 +4,13 @@ position (0-based, within its topic) of the first problem."""
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from collections import Counter
 
 from pipeline.errors import LogError
 from pipeline.log import schemas
 from pipeline.log.mcap_stream import McapFile
-from pipeline.log.messages import METADATA_NAME, DetectionLog, LogMetadata, Odometry
+from pipeline.log.messages import METADATA_NAME, DetectionLog, LogMetadata
 from pipeline.log.metadata import find_record, parse_metadata
 from pipeline.log.validate import LogValidator
 
@@ -28,15 +27,6 @@ def log_metadata(mcap: McapFile) -> LogMetadata:
         raise LogError(mcap.path, str(exc), f"metadata '{METADATA_NAME}'") from None
 
 
-def _shared_covariance(odometry: Odometry, earlier: list[Odometry]) -> Odometry:
-    """`odometry`, holding the previous step's covariance tuple where the two are equal: most
-    logs state one covariance for every step, and a tuple of 36 floats for each is memory a
-    long log need not hold (50,000 poses read: 152 -> 140 MB)."""
-    if earlier and odometry.covariance == earlier[-1].covariance:
-        return dataclasses.replace(odometry, covariance=earlier[-1].covariance)
-    return odometry
-
-
 def read_log(path: str | os.PathLike, load_images: bool = False) -> DetectionLog:
     """Read and validate a whole log; images are checked, and kept only if `load_images`."""
     with McapFile(path) as mcap:
@@ -50,7 +40,7 @@ def read_log(path: str | os.PathLike, load_images: bool = False) -> DetectionLog
             if msg is None:
                 continue
             if topic == schemas.ODOMETRY:
-                log.odometry.append(_shared_covariance(msg, log.odometry))
+                log.odometry.append(msg)
             elif topic == schemas.DETECTIONS:
                 log.detections.append(msg)
             elif topic == schemas.GT_POSE:

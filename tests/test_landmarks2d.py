@@ -145,10 +145,10 @@ def _positions(run: Path) -> np.ndarray:
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_victoria_park_closes_its_loops_once_its_first_loop_tells_the_drift(tmp_path):
+def test_victoria_park_closes_its_loops_once_its_loops_tell_the_drift(tmp_path):
     """The real Victoria Park, the given associations hidden from MM + NH (README, "Victoria
     Park"): its odometry's yaw bias keeps every loop open at the stated noise, until the first
-    loop the merges close raises the odometry's scale; from there its loops close as Known
+    loops the merges close raise the odometry's scale; from there its loops close as Known
     DA's do. With the windows alone (`scale_from_loops = false`): 547 landmarks, 217 m."""
     log = tmp_path / "vp.mcap"
     convert_landmarks2d(VICTORIA_PARK, log)

@@ -404,12 +404,29 @@ def test_drift_scale_belief_is_the_posterior_of_the_loops_closed():
 
 
 def test_drift_scale_belief_reads_its_likeliest_scale_against_the_current_one():
-    belief = DriftScaleBelief(0.5, 100.0, 2)  # scales 1, 10, 100
+    belief = DriftScaleBelief(0.5, 100.0, 2)  # scales 1, 10, 100; prior 0.5, 0.25, 0.25
     assert belief.reading(1.0) is None  # no loop yet
-    belief.observe(1.0, np.log([0.1, 0.2, 0.6]))  # posterior 0.2, 0.2, 0.6
+    belief.observe(1.0, np.log([0.1, 0.2, 0.6]))
+    # each loop an outlier with probability 0.05, likely as its best then: 0.95 p + 0.05 * 0.6
+    posterior = np.array([0.5, 0.25, 0.25]) * (0.95 * np.array([0.1, 0.2, 0.6]) + 0.03)
     scale, evidence = belief.reading(1.0)
-    assert scale == pytest.approx(100.0) and evidence == pytest.approx(np.log(0.6 / 0.2))
+    assert scale == pytest.approx(100.0)
+    assert evidence == pytest.approx(np.log(posterior[2] / posterior[0]))
     # at 10, scales 1 and 10 both stand for the current one
-    assert belief.reading(10.0)[1] == pytest.approx(np.log(0.6 / 0.4))
+    assert belief.reading(10.0)[1] == pytest.approx(np.log(posterior[2] / posterior[:2].sum()))
     # at 100 the likeliest is the current one: no evidence for a move
-    assert belief.reading(100.0)[1] == pytest.approx(np.log(0.6))
+    assert belief.reading(100.0)[1] == pytest.approx(np.log(posterior[2] / posterior.sum()))
+
+
+def test_one_loop_however_sure_moves_the_scale_by_three_nats_at_most_and_two_can_more():
+    belief = DriftScaleBelief(0.5, 100.0, 2)
+    sure = np.array([-1000.0, 0.0, 0.0])  # scale 1 ruled out by a thousand nats
+    belief.observe(1.0, sure)
+    _, evidence = belief.reading(1.0)
+    # prior odds 0.25 / 0.5, the loop at most 1 / 0.05
+    assert evidence == pytest.approx(np.log(0.25 / (0.5 * 0.05)), abs=1e-9)
+    assert odometry_scale_move(1.0, 10.0, evidence, 3.0, 3.0) is None
+    belief.observe(1.0, sure)
+    _, evidence = belief.reading(1.0)
+    assert evidence == pytest.approx(np.log(0.25 / (0.5 * 0.05**2)), abs=1e-9)
+    assert odometry_scale_move(1.0, 10.0, evidence, 3.0, 3.0) == 10.0

@@ -275,9 +275,10 @@ class Backend:
             # coming down again made kitti05-cars (noise x3, calibrated, seed 5) 10.4 -> 16.6 m.
             down = not any(m.after > m.before for m in self.odometry_moves)
             readings.append(("windows", *windows, down))
-        loops = None if self.merger is None else self.merger.drift_belief.reading(current)
-        if n.scale_from_loops and loops is not None:
-            readings.append(("loops", min(loops[0], n.max_scale), loops[1], False))
+        if n.scale_from_loops and self.merger is not None:
+            loops = self.merger.drift_belief.reading(current)
+            if loops is not None:
+                readings.append(("loops", min(loops[0], n.max_scale), loops[1], False))
         moves = []
         for source, scale, evidence, down in readings:
             after = odometry_scale_move(

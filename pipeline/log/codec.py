@@ -1,7 +1,7 @@
 """JSON <-> the log's messages, as `messages.py` declares them.
 
 msgspec decodes a message's JSON straight into its dataclass, checking every field's type and
-range as it goes (the annotations' `Meta`); `verify` then makes the checks that span a
+range as it goes (the annotations' `Meta`); `checked` then makes the checks that span a
 field's items (the annotations' markers: lengths, unit quaternions, covariances, box corners,
 rigid transforms, class ids below the log's count). `decode` raises `ValueError` with a short
 reason naming the field; the reader adds the topic and the message position. `encode` gives
@@ -113,7 +113,7 @@ _MARKERS = (Norm, UnitQuaternion, Covariance, Corners, RigidTransform, OfTheLogs
 
 @functools.cache
 def _plan(cls: type) -> tuple[tuple[tuple[str, Any], ...], tuple[tuple[str, bool], ...]]:
-    """What `verify` checks of a message class: (field, marker) pairs, and the fields holding
+    """What `checked` checks of a message class: (field, marker) pairs, and the fields holding
     messages of their own (one, or a tuple of them)."""
     hints = typing.get_type_hints(cls, include_extras=True)
     checks, nested = [], []
@@ -133,10 +133,14 @@ def _plan(cls: type) -> tuple[tuple[tuple[str, Any], ...], tuple[tuple[str, bool
     return tuple(checks), tuple(nested)
 
 
-def verify(msg: Any, num_classes: int, where: str = "") -> None:
-    """The checks that span a field's items, as the message's declaration marks them; raises
-    ValueError naming the field. Equal covariances are shared between messages."""
+def checked(msg: T, num_classes: int, where: str = "") -> T:
+    """`msg` after the checks that span a field's items, as the message's declaration marks
+    them (ValueError naming the field), built again by its own constructor, its nested messages
+    too: msgspec gives each instance it decodes a dict of its own, the constructor's share
+    their class's keys and take about 280 bytes less each (a 50,000-pose log read: 132 -> 76
+    MB). Equal covariances are shared between messages."""
     checks, nested = _plan(type(msg))
+    parts: dict[str, Any] = {}
     for name, marker in checks:
         value = getattr(msg, name)
         if value is None:
@@ -146,7 +150,7 @@ def verify(msg: Any, num_classes: int, where: str = "") -> None:
             problem = covariance_problem(value, marker.dim)
             if problem is not None:
                 raise ValueError(f"'{key}' {problem}")
-            object.__setattr__(msg, name, _shared(value))  # frozen: the same value, one copy
+            parts[name] = _shared(value)
         elif isinstance(marker, Norm):
             norm = math.sqrt(sum(v * v for v in value))
             if not marker.low <= norm <= marker.high:
@@ -171,10 +175,12 @@ def verify(msg: Any, num_classes: int, where: str = "") -> None:
         if value is None:
             continue
         if many:
-            for k, item in enumerate(value):
-                verify(item, num_classes, f"{where}{name}[{k}].")
+            parts[name] = tuple(
+                checked(item, num_classes, f"{where}{name}[{k}].") for k, item in enumerate(value)
+            )
         else:
-            verify(value, num_classes, f"{where}{name}.")
+            parts[name] = checked(value, num_classes, f"{where}{name}.")
+    return dataclasses.replace(msg, **parts)  # type: ignore[type-var]
 
 
 @functools.cache
@@ -199,21 +205,7 @@ def decode(cls: type[T], data: bytes, num_classes: int) -> T:
     except msgspec.DecodeError as error:
         parse_json(data)  # raises the reason: NaN, malformed, too deep
         raise ValueError(f"malformed JSON ({error})") from None
-    verify(msg, num_classes)
-    return _rebuilt(msg)
-
-
-def _rebuilt(msg: T) -> T:
-    """`msg` built again by its own constructor, its nested messages too. msgspec gives each
-    instance it decodes a dict of its own; the constructor's instances share their class's keys
-    and take about 280 bytes less each (a 50,000-pose log read: 132 -> 76 MB)."""
-    _, nested = _plan(type(msg))
-    parts = {}
-    for name, many in nested:
-        value = getattr(msg, name)
-        if value is not None:
-            parts[name] = tuple(_rebuilt(v) for v in value) if many else _rebuilt(value)
-    return dataclasses.replace(msg, **parts)  # type: ignore[type-var]
+    return checked(msg, num_classes)
 
 
 def _builtin(value: Any) -> Any:

@@ -16,6 +16,7 @@ from data_tools.landmarks2d import (
     parse_landmarks2d,
     step_covariance,
 )
+from data_tools.plot_runs import read_tum
 from pipeline.backend.planar import is_planar
 from pipeline.cli import main as cli_main
 from pipeline.errors import InputError
@@ -138,11 +139,6 @@ def test_a_small_real_dataset_replays_with_its_associations(tmp_path):
         assert "translation_error_m" not in metrics  # the file has no ground-truth poses
 
 
-def _positions(run: Path) -> np.ndarray:
-    rows = (run / "trajectory.tum").read_text().split("\n")
-    return np.array([[float(v) for v in row.split()[1:4]] for row in rows if row])
-
-
 @pytest.mark.slow
 @pytest.mark.e2e
 def test_victoria_park_closes_its_loops_once_its_loops_tell_the_drift(tmp_path):
@@ -161,5 +157,7 @@ def test_victoria_park_closes_its_loops_once_its_loops_tell_the_drift(tmp_path):
     given = metrics["association"]
     assert given["correct"] >= 0.95 * sum(given.values())
     assert metrics["num_landmarks"] <= 1.2 * 151
-    gap = _positions(tmp_path / "mm-nh") - _positions(tmp_path / "known")
+    gap = read_tum(tmp_path / "mm-nh" / "trajectory.tum") - read_tum(
+        tmp_path / "known" / "trajectory.tum"
+    )
     assert np.sqrt(np.mean(np.sum(gap**2, axis=1))) <= 5.0

@@ -1,6 +1,6 @@
 """`make bench`: speed and memory figures, printed; nothing here asserts anything about time.
 
-Parts (all by default, or `--only read,backend,isam2,mixture,viz,frontend`):
+Parts (all by default, or `--only read,backend,victoria,isam2,mixture,viz,frontend`):
 - read: `read_log` (the container, every message decoded and checked) on a 50,000-pose log
   (`simulate indoor-tags` chained, as `memory` makes it): best of three, wall and CPU time.
 - backend: known, ml, mm, mm-nh and dcsam on a `simulate kitti05-cars` log (2,761 poses, ~10,000
@@ -8,6 +8,9 @@ Parts (all by default, or `--only read,backend,isam2,mixture,viz,frontend`):
   and CPU time, ratio to known (CPU: the machine may be shared), to the log's real duration,
   back-end time per detection in every tenth of the log and its ratio to known's there, peak
   memory (VmHWM: each method in its own process), RMSE, landmarks.
+- victoria: Victoria Park (GTSAM's wheel ships it; converted once), known and mm-nh in
+  interleaved pairs (`--pairs`): each pair's ratio of CPU time and their median, against the
+  target of 3x (these machines share their cores: one pair is not a measurement).
 - isam2: GTSAM's iSAM2 alone on a bare Pose3 chain, ms per update as it grows
   (`bench_isam2.py`: why a long log's last tenth costs more per keyframe than its first).
 - mixture: where the max-mixture picks its component, native factors swapped between iSAM2
@@ -152,6 +155,34 @@ def bench_backend(out: Path, methods: tuple[str, ...], long_poses: int) -> None:
     print("target: known's last-10 %/first-10 % cost per detection <= 4")
 
 
+def victoria_park_log(out: Path) -> Path:
+    """GTSAM's Victoria Park as a contract log (`mmslam convert`), made once."""
+    import gtsam
+
+    from data_tools.landmarks2d import convert_landmarks2d
+
+    path = out / "victoria_park.mcap"
+    if not path.exists():
+        convert_landmarks2d(Path(gtsam.__file__).parent / "Data" / "victoria_park.txt", path)
+    return path
+
+
+def bench_victoria(out: Path, pairs: int) -> None:
+    """Known and mm-nh on Victoria Park, alternately: the ratio of each pair and the median."""
+    log_path = victoria_park_log(out)
+    print(f"\n== Victoria Park ({log_path}): mm-nh against known, {pairs} interleaved pairs")
+    ratios = []
+    for k in range(pairs):
+        known = run_in_subprocess(log_path, "known", {})
+        robust = run_in_subprocess(log_path, "mm-nh", {})
+        ratios.append(robust["cpu_seconds"] / known["cpu_seconds"])
+        print(
+            f"  pair {k + 1}: known {known['cpu_seconds']:.1f} s, mm-nh "
+            f"{robust['cpu_seconds']:.1f} s ({robust['landmarks']} landmarks): {ratios[-1]:.2f}x"
+        )
+    print(f"median {float(np.median(ratios)):.2f}x known (target <= 3x)")
+
+
 def time_shares(stats: pstats.Stats) -> dict[str, float]:
     """Seconds spent inside GTSAM's wrapped calls, inside numpy's compiled functions, and in
     the rest (Python, and the C calls it makes otherwise), from a profile's own times."""
@@ -214,11 +245,12 @@ def bench_read(out: Path, poses: int = 50_000, repeats: int = 3) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
-    parser.add_argument("--only", default="read,backend,isam2,mixture,viz,frontend")
+    parser.add_argument("--only", default="read,backend,victoria,isam2,mixture,viz,frontend")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument(
         "--long-poses", type=int, default=10000, help="poses of the long log (default 10,000)"
     )
+    parser.add_argument("--pairs", type=int, default=3, help="victoria's pairs (default 3)")
     parser.add_argument("--run-one", nargs=3, metavar=("LOG", "METHOD", "OVERRIDES"))
     parser.add_argument("--profile", metavar="METHOD", help="profile one replay (cProfile)")
     parser.add_argument("--log", type=Path, help="--profile's log (default: KITTI-05-size)")
@@ -237,6 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         bench_read(args.out)
     if "backend" in parts:
         bench_backend(args.out, tuple(args.methods.split(",")), args.long_poses)
+    if "victoria" in parts:
+        bench_victoria(args.out, args.pairs)
     if "isam2" in parts:
         from data_tools import bench_isam2
 

@@ -12,6 +12,12 @@ pointers, written to avoid deep recursion): the whole tree, at every update. `py
 --native` on this script at 20,000 poses puts 74 % of the time in `~BayesTree`. This is why a
 long log's last tenth costs more per keyframe than its first (issue 35's 26,661-pose chain:
 7.1x), and why a replay's back-end time grows faster than its log.
+
+The joint marginals the association asks for cost by how far apart their variables sit in the
+Bayes tree (`joint_marginal_ms`): with the newest pose in the root, a landmark seen long ago
+sits deep, and GTSAM computes the shortcut of its clique to the root again at every joint
+query (a single marginal is cached after its first call; the joint costs as much again). Two
+old landmarks seen together share a deep ancestor, and their joint costs a small fraction.
 """
 
 from __future__ import annotations
@@ -49,10 +55,64 @@ def chain_update_ms(poses: int, every: int) -> list[tuple[int, float]]:
     return out
 
 
+def _timed_ms(query, repeats: int = 10) -> tuple[float, float]:
+    """ms of a query's first call, and of each call after it on average."""
+    start = time.perf_counter()
+    query()
+    first = time.perf_counter()
+    for _ in range(repeats):
+        query()
+    return 1e3 * (first - start), 1e3 * (time.perf_counter() - first) / repeats
+
+
+def joint_marginal_ms(poses: int) -> dict[str, tuple[float, float]]:
+    """The first call's ms and the later calls' (`_timed_ms`) of some marginal queries on a
+    chain of `poses` poses that saw a landmark every 50 poses (each from three poses): the
+    oldest landmark's marginal, joints of the newest pose with the newest and the oldest
+    landmark, and of the two oldest landmarks."""
+    X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+    isam = gtsam.ISAM2(gtsam.ISAM2Params())
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e-3] * 3 + [0.1] * 3))
+    seen = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01, 0.01, 0.1]))
+    step = gtsam.Pose3(gtsam.Rot3.Yaw(0.001), gtsam.Point3(1.0, 0.0, 0.0))
+    pose = gtsam.Pose3()
+    for k in range(poses):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if k == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), pose, noise))
+        else:
+            pose = pose.compose(step)
+            graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, noise))
+        values.insert(X(k), pose)
+        j = k // 50
+        if k % 50 < 3:  # landmark j, 5 m to the left of where pose 50 j was, seen three times
+            point = gtsam.Point3(50.0 * j, 5.0, 0.0)
+            if k % 50 == 0:
+                values.insert(L(j), point)
+            body = pose.transformTo(point)
+            bearing = gtsam.Unit3(body)
+            graph.add(gtsam.BearingRangeFactor3D(X(k), L(j), bearing, np.linalg.norm(body), seen))
+        isam.update(graph, values)
+    last, recent, old = X(poses - 1), L((poses - 1) // 50), L(0)
+    return {
+        "marginal of the oldest landmark": _timed_ms(lambda: isam.marginalCovariance(old)),
+        "joint: newest pose, newest landmark": _timed_ms(
+            lambda: isam.jointMarginalCovariance([last, recent])
+        ),
+        "joint: newest pose, oldest landmark": _timed_ms(
+            lambda: isam.jointMarginalCovariance([last, old])
+        ),
+        "joint: the two oldest landmarks": _timed_ms(
+            lambda: isam.jointMarginalCovariance([old, L(1)])
+        ),
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--poses", type=int, default=20_000)
     parser.add_argument("--every", type=int, default=2_500)
+    parser.add_argument("--joint-poses", type=int, default=5_000)
     args = parser.parse_args(argv)
     version = library_versions()["gtsam"]
     print(f"\n== GTSAM {version} iSAM2 alone, a bare Pose3 chain: ms per update")
@@ -61,6 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'poses':>8}{'ms/update':>11}{'x first':>9}")
     for poses, ms in rows:
         print(f"{poses:>8}{ms:>11.3f}{ms / first:>9.1f}")
+    print(f"\n== GTSAM {version} marginals on a {args.joint_poses:,}-pose chain: ms a query")
+    print(f"  {'':<40}{'first':>9}{'again':>9}")
+    for what, (first_ms, again_ms) in joint_marginal_ms(args.joint_poses).items():
+        print(f"  {what:<40}{first_ms:>9.3f}{again_ms:>9.3f}")
     return 0
 
 

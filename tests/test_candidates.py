@@ -1,6 +1,7 @@
 """Candidate gating (`candidates.py`) on small states built by hand: the search radius, the
 exact chi-square gate in R's metric, the cheap bound before it, and `max_candidates`."""
 
+import dataclasses
 import math
 
 import gtsam
@@ -8,10 +9,14 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import L, X
 
+from pipeline import geometry
 from pipeline.backend import association as assoc
-from pipeline.backend.candidates import CandidateScorer, PosePrediction, search_radius
+from pipeline.backend.candidates import CandidateScorer, PosePrediction, search_regions
+from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.measurements import make_measurement
 from pipeline.config import load_config
 from pipeline.geometry import bearing_elevation_range
+from pipeline.log.messages import RelativePose
 from tests.backend_cases import (
     CONFUSION,
     add_landmark,
@@ -34,15 +39,133 @@ def test_the_search_radius_is_sigmas_of_the_predicted_spread_plus_the_margin():
     m = measurement(1, detection_of(pose, [1.0, 12.0, 0.0], sigmas=SIGMAS))
     # the pose: yaw known to 0.01 rad, its forward translation to 0.2 m
     pose_covariance = np.diag([0.0, 0.0, 0.01**2, 0.2**2, 0.0, 0.0])
-    center, radius = search_radius(prediction, pose_covariance, m, sigmas=4.0, margin=3.0)
+    (center,), (radius,) = search_regions(prediction, pose_covariance, [m], sigmas=4.0, margin=3.0)
     np.testing.assert_allclose(center, [1.0, 12.0, 0.0], atol=1e-12)
     # In the world: across the line of sight (x) the bearing's 10 m * 0.01 and the yaw's
     # 10 m * 0.01; along it (y) the range's 0.3 and the translation's 0.2; up, 10 * 0.005.
     # The largest variance is along: 0.09 + 0.04 = 0.13.
     assert radius == pytest.approx(4.0 * math.sqrt(0.13) + 3.0, rel=1e-9)
     # without the pose's uncertainty, across and along are 0.01 and 0.09
-    _, bare = search_radius(prediction, np.zeros((6, 6)), m, sigmas=2.0, margin=0.0)
+    _, (bare,) = search_regions(prediction, np.zeros((6, 6)), [m], sigmas=2.0, margin=0.0)
     assert bare == pytest.approx(2.0 * 0.3, rel=1e-9)
+
+
+def _tag_measurement(pose_index: int, relative: gtsam.Pose3, index: int = 0):
+    """A tag's pose relative to the body (use_relative_pose): a pose landmark's measurement."""
+    q = relative.rotation().toQuaternion()
+    tag = RelativePose(
+        translation=tuple(float(v) for v in relative.translation()),
+        rotation=(q.x(), q.y(), q.z(), q.w()),  # the contract's order
+        covariance=tuple(np.diag([1e-4, 1e-4, 1e-4, 4e-4, 4e-4, 1e-3]).ravel()),
+    )
+    z = bearing_elevation_range(relative.translation())
+    detection = dataclasses.replace(detection_at(z), source="apriltag", relative_pose=tag)
+    return make_measurement(pose_index, index, detection, use_relative_pose=True)
+
+
+def _add_tag(context, pose: gtsam.Pose3, sigma: float) -> int:
+    """A pose landmark at `pose`, held by a prior of `sigma` in every tangent direction."""
+    landmark = context.landmarks.create(LandmarkKind.POSE, pose.translation())
+    context.solver.insert(L(landmark.id), pose)
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, sigma)
+    context.solver.add(gtsam.PriorFactorPose3(L(landmark.id), pose, noise))
+    return landmark.id
+
+
+def test_a_keyframe_s_search_regions_are_each_detection_s_own():
+    """Stacked over a keyframe's detections of both kinds, each region is the one its
+    detection gets alone, which is R p + t and sigmas times the largest spread, worked out
+    here one detection at a time."""
+    rng = np.random.default_rng(3)
+    pose = gtsam.Pose3(gtsam.Rot3.Ypr(0.4, 0.05, -0.02), np.array([3.0, -1.0, 0.2]))
+    prediction = PosePrediction(1, X(0), pose, np.eye(6), np.zeros((6, 6)))
+    A = rng.normal(size=(6, 6))
+    pose_covariance = 1e-3 * A @ A.T
+    points = [
+        measurement(1, detection_of(pose, p, sigmas=SIGMAS), k)
+        for k, p in enumerate(rng.uniform([0, -10, -1], [30, 10, 2], (5, 3)))
+    ]
+    tags = [
+        _tag_measurement(
+            1, gtsam.Pose3(gtsam.Rot3.Yaw(0.2 * k), np.array([4.0 + k, k - 1.0, 0.3])), 5 + k
+        )
+        for k in range(3)
+    ]
+    keyframe = [points[0], tags[0], *points[1:3], tags[1], *points[3:], tags[2]]
+    centers, radii = search_regions(prediction, pose_covariance, keyframe, 4.0, 3.0)
+    R, t = pose.rotation().matrix(), pose.translation()
+    for m, center, radius in zip(keyframe, centers, radii, strict=True):
+        (alone_center,), (alone_radius,) = search_regions(
+            prediction, pose_covariance, [m], 4.0, 3.0
+        )
+        np.testing.assert_allclose(center, alone_center, rtol=0, atol=1e-12)
+        assert radius == pytest.approx(alone_radius, rel=1e-12)
+        p_body = m.body_point
+        J = R @ np.hstack([-geometry.skew(p_body), np.eye(3)])
+        if m.relative_rotation is None:
+            G = R @ np.linalg.inv(geometry.bearing_elevation_range_jacobian(p_body))
+            own = G @ m.covariance @ G.T
+        else:
+            R_z = R @ m.relative_rotation
+            own = R_z @ m.covariance[3:, 3:] @ R_z.T
+        spread = math.sqrt(np.linalg.eigvalsh(J @ pose_covariance @ J.T + own)[-1])
+        np.testing.assert_allclose(center, R @ p_body + t, rtol=0, atol=1e-12)
+        assert radius == pytest.approx(4.0 * spread + 3.0, rel=1e-12)
+
+
+@pytest.mark.parametrize("keep_joint", [False, True])
+def test_a_keyframe_scored_at_once_gives_each_detection_what_it_gets_alone(keep_joint):
+    """The keyframe's pairs are scored in one batch: each detection's candidates, weights and
+    distances are those it gets scored on its own, on random maps (to round-off)."""
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        context = hand_context()
+        add_pose(context, 0, gtsam.Pose3(), [0.02, 0.02, 0.05, 0.3, 0.3, 0.1])
+        positions = rng.uniform([2, -12, -1], [30, 12, 1], (40, 3))
+        for p in positions:
+            add_landmark(context, p, rng.uniform(0.2, 1.5), classes=rng.dirichlet([1, 1]))
+        tags = [
+            gtsam.Pose3(gtsam.Rot3.Yaw(rng.uniform(-1, 1)), np.append(rng.uniform(3, 8, 2), 0.5))
+            for _ in range(6)
+        ]
+        for tag in tags:
+            _add_tag(context, tag, rng.uniform(0.05, 0.3))
+        context.solver.update()
+        step = gtsam.Pose3(gtsam.Rot3.Yaw(0.05), np.array([1.0, 0.1, 0.0]))
+        prediction = PosePrediction(
+            1, X(0), step, step.inverse().AdjointMap(), np.diag([1e-4] * 3 + [1e-2] * 3)
+        )
+        seen = positions[rng.choice(len(positions), 10, replace=False)]
+        keyframe = [
+            measurement(
+                1,
+                detection_of(
+                    step,
+                    p + rng.normal(0, 0.5, 3),
+                    class_id=int(rng.integers(2)),
+                    sigmas=rng.uniform(0.5, 2.0, 3) * np.array([0.01, 0.01, 0.1]),
+                ),
+                k,
+            )
+            for k, p in enumerate(seen)
+        ]
+        for tag in tags[:3]:  # the tags seen, among the points
+            relative = step.between(tag).compose(gtsam.Pose3.Expmap(rng.normal(0, 0.02, 6)))
+            keyframe.insert(int(rng.integers(len(keyframe))), _tag_measurement(1, relative))
+        s = scorer(context, keep_joint)
+        together = s.score(prediction, keyframe, full=True)
+        for m, c in zip(keyframe, together, strict=True):
+            (alone,) = s.score(prediction, [m], full=True)
+            assert c.landmark_ids.tolist() == alone.landmark_ids.tolist()
+            assert c.searched == alone.searched
+            np.testing.assert_allclose(c.weights, alone.weights, rtol=1e-9, atol=1e-12)
+            np.testing.assert_allclose(c.mahalanobis_sq, alone.mahalanobis_sq, rtol=1e-9)
+            np.testing.assert_allclose(c.fit_sq, alone.fit_sq, rtol=1e-12)
+        assert sum(len(c) > 1 for c in together) >= 1  # some detection had rivals to weigh
+        tag_candidates = [
+            len(c) for m, c in zip(keyframe, together, strict=True) if m.kind is LandmarkKind.POSE
+        ]
+        assert sum(tag_candidates) >= 3  # the tags were scored too
 
 
 # --- the exact gate: a pose known to a micrometre, landmarks known to LANDMARK_SIGMA --------

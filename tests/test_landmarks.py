@@ -24,6 +24,24 @@ def test_a_query_finds_exactly_the_items_within_its_radius(radius):
         assert index.query(center, radius) == expected
 
 
+def test_several_balls_searched_at_once_find_what_each_finds_alone():
+    rng = np.random.default_rng(2)
+    index = SpatialHash(cell_size=2.0)
+    positions = rng.uniform(-20.0, 20.0, size=(300, 3))
+    for item, position in enumerate(positions):
+        index.set(item, position)
+    for trial in range(20):
+        centers = rng.uniform(-25.0, 25.0, size=(5, 3))
+        # mostly a few cells; on some trials one ball wider than the map
+        radii = rng.uniform(0.1, 6.0, size=5)
+        if trial % 4 == 0:
+            radii[trial % 5] = 500.0
+        found = index.query_many(centers, radii)
+        for center, radius, ids in zip(centers, radii, found, strict=True):
+            expected = [i for i in range(300) if np.linalg.norm(positions[i] - center) <= radius]
+            assert ids == expected
+
+
 def test_a_withdrawn_landmark_is_no_candidate_until_it_is_held_again():
     """dcsam's landmarks that every detection left: out of the index, kept in the map, moved
     by the solver without coming back; reinstated where it is now; discarded at the end."""

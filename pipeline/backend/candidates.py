@@ -31,6 +31,7 @@ from pipeline.backend.measurements import Measurement
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import AssociationConfig
 from pipeline.errors import SolverError
+from pipeline.geometry import point_from_bearing_elevation_range
 
 
 @dataclass(frozen=True)
@@ -92,12 +93,55 @@ class _Screened:
 
     ids: np.ndarray  # landmarks that may pass the gate
     semantic: np.ndarray
-    residual: np.ndarray
-    H_x: np.ndarray
-    H_l: np.ndarray
-    pose_part: np.ndarray
-    searched: int
+    searched: int  # how many landmarks the spatial search returned
+    residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    H_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    H_l: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pose_part: np.ndarray = field(default_factory=lambda: np.zeros(0))
     sure: Candidates | None = None  # decided without joint marginals
+
+    @staticmethod
+    def unscored(ids: list[int], semantic: np.ndarray) -> _Screened:
+        """The landmarks found near, less those of a class the detector never confuses with
+        the reported one (weight zero: no need to look)."""
+        keep = semantic > 0.0
+        out = _Screened(np.array(ids, dtype=int)[keep], semantic[keep], len(ids))
+        if not np.any(keep):
+            out.sure = Candidates.none(len(ids))
+        return out
+
+    def scored(
+        self,
+        kept: np.ndarray,
+        residual: np.ndarray,
+        H_x: np.ndarray,
+        H_l: np.ndarray,
+        pose_part: np.ndarray,
+        covariance: np.ndarray,
+        sure_gate: float,
+    ) -> _Screened:
+        """The landmarks `kept` by the cheap bound, with their residuals and Jacobians; sure
+        when nothing is left, or one landmark that passes even under the smaller R (Gamma) and
+        has no rival: weight 1, whatever R is."""
+        out = _Screened(
+            self.ids[kept], self.semantic[kept], self.searched, residual, H_x, H_l, pose_part
+        )
+        if len(kept) == 0:
+            out.sure = Candidates.none(self.searched)
+        elif len(kept) == 1:
+            fit = assoc.mahalanobis_squared(residual[0], covariance)
+            if fit <= sure_gate:
+                out.sure = Candidates(
+                    out.ids, np.ones(1), out.semantic, np.full(1, np.nan), self.searched,
+                    np.array([fit]),
+                )  # fmt: skip
+        return out
+
+
+def _spans(counts: list[int]) -> list[np.ndarray]:
+    """Indices of each detection's pairs in the keyframe's stacked pairs, `counts[i]` each."""
+    ends = np.cumsum(counts)
+    return [np.arange(end - count, end) for end, count in zip(ends, counts, strict=True)]
 
 
 def _all_sure(screened: list[_Screened], is_recent: Callable[[int], bool] | None) -> bool:
@@ -120,25 +164,36 @@ def covariance_bound(solver: Isam2Solver, landmarks: LandmarkMap, landmark_id: i
     return landmark.covariance_bound
 
 
-def search_radius(
+def search_regions(
     prediction: PosePrediction,
     pose_covariance: np.ndarray,
-    measurement: Measurement,
+    measurements: list[Measurement],
     sigmas: float,
     margin: float,
-) -> tuple[np.ndarray, float]:
-    """Where the detection puts its landmark in the world, and how far to look around it."""
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each detection of a keyframe puts its landmark in the world (n, 3), and how far
+    to look around it (n,): `sigmas` times the largest spread of that point, the predicted
+    pose's uncertainty and the detection's own, plus `margin`."""
     R = prediction.pose.rotation().matrix()
-    p_body = measurement.body_point
+    is_pose = np.array([m.kind is LandmarkKind.POSE for m in measurements])
+    p_body = np.empty((len(measurements), 3))
+    measured = np.empty((len(measurements), 3, 3))
+    points = [m for m in measurements if m.kind is LandmarkKind.POINT]
+    if points:
+        vectors = np.array([m.vector for m in points])
+        p_body[~is_pose] = point_from_bearing_elevation_range(vectors)
+        covariances = np.array([m.covariance for m in points])
+        measured[~is_pose] = world_point_covariance(R, vectors, covariances)
+    poses = [m for m in measurements if m.kind is LandmarkKind.POSE]
+    if poses:
+        p_body[is_pose] = np.array([m.relative_translation for m in poses])
+        R_z = R @ np.array([m.relative_rotation for m in poses])
+        translation = np.array([m.covariance[3:, 3:] for m in poses])
+        measured[is_pose] = R_z @ translation @ np.swapaxes(R_z, 1, 2)
     Jx = world_point_jacobian_pose(R, p_body)
-    if measurement.kind is LandmarkKind.POSE:
-        R_z = R @ measurement.relative_rotation
-        measured = R_z @ measurement.covariance[3:, 3:] @ R_z.T
-    else:
-        measured = world_point_covariance(R, measurement.vector, measurement.covariance)
-    world_cov = Jx @ pose_covariance @ Jx.T + measured
-    spread = float(np.sqrt(max(np.linalg.eigvalsh(world_cov)[-1], 0.0)))
-    return prediction.pose.transformFrom(p_body), sigmas * spread + margin
+    world_cov = Jx @ pose_covariance @ np.swapaxes(Jx, 1, 2) + measured
+    spread = np.sqrt(np.maximum(np.linalg.eigvalsh(world_cov)[:, -1], 0.0))
+    return p_body @ R.T + prediction.pose.translation(), sigmas * spread + margin
 
 
 class CandidateScorer:
@@ -178,6 +233,7 @@ class CandidateScorer:
         Cheap bounds first screen each detection's nearby landmarks; the joint marginals of the
         anchor pose and every landmark still in play, for all the keyframe's detections at
         once, come from one iSAM2 query (one walk of the Bayes tree instead of one a pair).
+        Every (detection, landmark) pair of the keyframe is scored in a few array operations.
 
         Keeping the joint (`keep_joint`), a keyframe whose every detection is sure (a lone
         candidate that fits even without the pose's and landmark's uncertainty, each its own,
@@ -191,33 +247,30 @@ class CandidateScorer:
                 f"the estimate diverged: {gtsam.DefaultKeyFormatter(prediction.anchor_key)} "
                 "or its covariance is not finite"
             )
-        nearby = []
-        for m in measurements:
-            center, radius = search_radius(
-                prediction, pose_cov, m, self.config.search_sigmas, self.config.search_margin_m
-            )
-            nearby.append(self.landmarks.near(m.kind, center, radius))
+        centers, radii = search_regions(
+            prediction, pose_cov, measurements, self.config.search_sigmas,
+            self.config.search_margin_m,
+        )  # fmt: skip
+        nearby = self.landmarks.near_many([m.kind for m in measurements], centers, radii)
         estimates = EstimateCache(self.solver, self.landmarks.is_pose)
         estimates.fetch([], set().union(*nearby))
-        screened = [
-            self._screen(prediction, pose_cov, m, ids, estimates)
-            for m, ids in zip(measurements, nearby, strict=True)
-        ]
+        screened = self._screen(prediction, pose_cov, measurements, nearby, estimates)
         if not self.keep_joint:
             wanted = sorted({int(j) for s in screened if s.sure is None for j in s.ids})
-            joints = self._joints(prediction, wanted)
-            return [
-                s.sure if s.sure is not None else self._finish(m, s, joints)
-                for m, s in zip(measurements, screened, strict=True)
-            ]
-        if not full and _all_sure(screened, is_recent):
+            to_finish = [i for i, s in enumerate(screened) if s.sure is None]
+        elif not full and _all_sure(screened, is_recent):
             return [s.sure for s in screened]  # type: ignore[misc]
-        wanted = sorted({int(j) for s in screened for j in s.ids})
+        else:
+            wanted = sorted({int(j) for s in screened for j in s.ids})
+            to_finish = [i for i, s in enumerate(screened) if len(s.ids)]
         joints = self._joints(prediction, wanted)
-        return [
-            self._finish(m, s, joints) if len(s.ids) else Candidates.none(s.searched)
-            for m, s in zip(measurements, screened, strict=True)
-        ]
+        out = [s.sure if s.sure is not None else Candidates.none(s.searched) for s in screened]
+        finished = self._finish(
+            [measurements[i] for i in to_finish], [screened[i] for i in to_finish], joints
+        )
+        for i, candidates in zip(to_finish, finished, strict=True):
+            out[i] = candidates
+        return out
 
     def _joints(
         self, prediction: PosePrediction, landmark_ids: list[int]
@@ -266,106 +319,141 @@ class CandidateScorer:
         self,
         prediction: PosePrediction,
         pose_cov: np.ndarray,
-        m: Measurement,
-        ids: list[int],
+        measurements: list[Measurement],
+        nearby: list[list[int]],
         estimates: EstimateCache,
-    ) -> _Screened:
-        empty = np.zeros(0)
-        nothing = _Screened(np.zeros(0, dtype=int), empty, empty, empty, empty, empty, len(ids))
-        if not ids:
-            nothing.sure = Candidates.none()
-            return nothing
-        searched = len(ids)
-        column = self.confusion[:, m.detection.class_id]
-        semantic = np.array([column @ self.landmarks.landmarks[j].class_probabilities for j in ids])
-        # A class the detector never confuses with this one: weight zero, no need to look.
-        ids = [j for j, s in zip(ids, semantic, strict=True) if s > 0.0]
-        semantic = semantic[semantic > 0.0]
-        if not ids:
-            nothing.sure = Candidates.none(searched)
-            return nothing
-        gate = assoc.chi2_gate(m.dim, self.confidence)
-        residual, H_x, H_l = self._residuals(m, prediction, ids, estimates)
-        pose_part = H_x @ pose_cov @ np.swapaxes(H_x, 1, 2)
-        # First, no joint marginals: Gamma <= R <= 2 (pose part + landmark part) + Gamma,
-        # whatever the pose-landmark correlation, which bounds each Mahalanobis distance from
-        # both sides. A landmark failing the gate under the larger R fails it for sure.
-        landmark_cov = np.stack([covariance_bound(self.solver, self.landmarks, j) for j in ids])
-        landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
-        bound = 2.0 * (pose_part + landmark_part) + m.covariance
-        bound_d2 = assoc.mahalanobis_squared_batch(residual, bound)
-        plausible = np.flatnonzero(bound_d2 <= gate)
-        # After a long drift every landmark for tens of metres passes: the nearest few only.
-        plausible = plausible[np.argsort(bound_d2[plausible], kind="stable")]
-        plausible = np.sort(plausible[: self.config.max_candidates])
-        out = _Screened(
-            np.array(ids)[plausible],
-            semantic[plausible],
-            residual[plausible],
-            H_x[plausible],
-            H_l[plausible],
-            pose_part[plausible],
-            searched,
-        )
-        if len(plausible) == 0:
-            out.sure = Candidates.none(searched)
-        elif len(plausible) == 1:
-            fit = assoc.mahalanobis_squared(out.residual[0], m.covariance)
-            if fit <= assoc.chi2_gate(m.dim, self.config.chi2_confidence):
-                # Passes even under the smaller R and has no rival: weight 1, whatever R is.
-                out.sure = Candidates(
-                    out.ids, np.ones(1), out.semantic, np.full(1, np.nan), searched, np.array([fit])
-                )
+    ) -> list[_Screened]:
+        """Each detection's nearby landmarks screened without joint marginals: R lies between
+        Gamma and 2 (pose part + landmark part) + Gamma whatever the pose-landmark correlation,
+        which bounds each Mahalanobis distance from both sides. A landmark failing the gate
+        under the larger R fails it for sure. The pairs of each kind of landmark are scored
+        together."""
+        lms = self.landmarks.landmarks
+        out: list[_Screened] = []
+        for m, ids in zip(measurements, nearby, strict=True):
+            column = self.confusion[:, m.detection.class_id]
+            semantic = np.array([column @ lms[j].class_probabilities for j in ids])
+            out.append(_Screened.unscored(ids, semantic))
+        for kind in LandmarkKind:
+            rows = [i for i, m in enumerate(measurements) if m.kind is kind and len(out[i].ids)]
+            if not rows:
+                continue
+            counts = [len(out[i].ids) for i in rows]
+            det = np.repeat(rows, counts)
+            ids = np.concatenate([out[i].ids for i in rows])
+            residual, H_x, H_l = self._residuals(
+                kind, [measurements[i] for i in det], prediction, ids, estimates
+            )
+            pose_part = H_x @ pose_cov @ np.swapaxes(H_x, 1, 2)
+            landmark_cov = np.stack([covariance_bound(self.solver, self.landmarks, j) for j in ids])
+            landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
+            gamma = np.stack([measurements[i].covariance for i in det])
+            bound_d2 = assoc.mahalanobis_squared_batch(
+                residual, 2.0 * (pose_part + landmark_part) + gamma
+            )
+            dim = measurements[rows[0]].dim
+            gate = assoc.chi2_gate(dim, self.confidence)
+            sure_gate = assoc.chi2_gate(dim, self.config.chi2_confidence)
+            for i, pairs in zip(rows, _spans(counts), strict=True):
+                plausible = np.flatnonzero(bound_d2[pairs] <= gate)
+                # After a long drift every landmark for tens of metres passes: the nearest few.
+                plausible = plausible[np.argsort(bound_d2[pairs][plausible], kind="stable")]
+                kept = pairs[np.sort(plausible[: self.config.max_candidates])]
+                out[i] = out[i].scored(
+                    kept - pairs[0], residual[kept], H_x[kept], H_l[kept], pose_part[kept],
+                    measurements[i].covariance, sure_gate,
+                )  # fmt: skip
         return out
 
     def _finish(
-        self, m: Measurement, s: _Screened, joints: dict[int, tuple[np.ndarray, np.ndarray]]
+        self,
+        measurements: list[Measurement],
+        screened: list[_Screened],
+        joints: dict[int, tuple[np.ndarray, np.ndarray]],
+    ) -> list[Candidates]:
+        """Gate and weigh screened detections' landmarks with R from the joint marginals; the
+        pairs of each kind of landmark in one batch."""
+        out: list[Candidates] = [Candidates.none(s.searched) for s in screened]
+        for kind in LandmarkKind:
+            rows = [i for i, m in enumerate(measurements) if m.kind is kind]
+            if not rows:
+                continue
+            counts = [len(screened[i].ids) for i in rows]
+            det = np.repeat(rows, counts)
+            ids = np.concatenate([screened[i].ids for i in rows])
+            sigma_xl = np.stack([joints[int(j)][0] for j in ids])
+            sigma_ll = np.stack([joints[int(j)][1] for j in ids])
+            hx = np.concatenate([screened[i].H_x for i in rows])
+            hl = np.concatenate([screened[i].H_l for i in rows])
+            residual = np.concatenate([screened[i].residual for i in rows])
+            cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
+            R = np.concatenate([screened[i].pose_part for i in rows])
+            R = R + cross + np.swapaxes(cross, 1, 2) + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
+            R = R + np.stack([measurements[i].covariance for i in det])
+            R = 0.5 * (R + np.swapaxes(R, 1, 2))
+            d2 = assoc.mahalanobis_squared_batch(residual, R)
+            passed = d2 <= assoc.chi2_gate(measurements[rows[0]].dim, self.confidence)
+            log_geo = np.full(len(d2), -np.inf)
+            if np.any(passed):
+                log_geo[passed] = assoc.gaussian_log_density_batch(residual[passed], R[passed])
+            for i, pairs in zip(rows, _spans(counts), strict=True):
+                gated = pairs[passed[pairs]]
+                if len(gated):
+                    out[i] = self._weighed(
+                        measurements[i], screened[i], gated - pairs[0], log_geo[gated],
+                        d2[gated], R[gated],
+                    )  # fmt: skip
+        return out
+
+    def _weighed(
+        self,
+        m: Measurement,
+        s: _Screened,
+        passed: np.ndarray,
+        log_geo: np.ndarray,
+        d2: np.ndarray,
+        R: np.ndarray,
     ) -> Candidates:
-        """Gate and weigh a screened detection's landmarks with R from the joint marginals."""
-        sigma_xl = np.stack([joints[int(j)][0] for j in s.ids])
-        sigma_ll = np.stack([joints[int(j)][1] for j in s.ids])
-        hx, hl = s.H_x, s.H_l
-        cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
-        R = s.pose_part + cross + np.swapaxes(cross, 1, 2) + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
-        R = R + m.covariance
-        R = 0.5 * (R + np.swapaxes(R, 1, 2))
-        d2 = assoc.mahalanobis_squared_batch(s.residual, R)
-        passed = d2 <= assoc.chi2_gate(m.dim, self.confidence)
-        if not np.any(passed):
-            return Candidates.none(s.searched)
-        log_geo = assoc.gaussian_log_density_batch(s.residual[passed], R[passed])
+        """The candidates of one detection from its pairs that passed the gate (`passed`: their
+        indices among its screened ones)."""
         weights = assoc.association_weights(log_geo, s.semantic[passed])
         keep = weights >= self.config.min_weight
-        fit = np.einsum(
-            "ki,ij,kj->k", s.residual[passed][keep], m.information, s.residual[passed][keep]
-        )
+        kept = passed[keep]
+        fit = np.einsum("ki,ij,kj->k", s.residual[kept], m.information, s.residual[kept])
         return Candidates(
-            landmark_ids=s.ids[passed][keep],
+            landmark_ids=s.ids[kept],
             weights=weights[keep] / weights[keep].sum(),
-            semantic=s.semantic[passed][keep],
-            mahalanobis_sq=d2[passed][keep],
+            semantic=s.semantic[kept],
+            mahalanobis_sq=d2[keep],
             searched=s.searched,
             fit_sq=fit,
-            residuals=s.residual[passed][keep] if self.keep_joint else None,
-            pose_jacobians=hx[passed][keep] if self.keep_joint else None,
-            landmark_jacobians=hl[passed][keep] if self.keep_joint else None,
-            innovation_covariances=R[passed][keep] if self.keep_joint else None,
+            residuals=s.residual[kept] if self.keep_joint else None,
+            pose_jacobians=s.H_x[kept] if self.keep_joint else None,
+            landmark_jacobians=s.H_l[kept] if self.keep_joint else None,
+            innovation_covariances=R[keep] if self.keep_joint else None,
         )
 
     @staticmethod
     def _residuals(
-        m: Measurement, prediction: PosePrediction, ids: list[int], estimates: EstimateCache
+        kind: LandmarkKind,
+        measurements: list[Measurement],
+        prediction: PosePrediction,
+        ids: np.ndarray,
+        estimates: EstimateCache,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Residual h(x, l) - z and Jacobians for each candidate, stacked."""
+        """Residual h(x, l) - z and Jacobians of each (detection, landmark) pair, stacked:
+        `measurements[k]` (all of `kind`) paired with landmark `ids[k]`."""
         R_x = prediction.pose.rotation().matrix()
         t_x = prediction.pose.translation()
-        rows = estimates.rows([L(j) for j in ids])
-        if m.kind is LandmarkKind.POSE:
+        rows = estimates.rows([L(int(j)) for j in ids])
+        if kind is LandmarkKind.POSE:
             R_l, t_l = rows[:, :9].reshape(-1, 3, 3), rows[:, 9:]
             residual = pose_residual_batch(
-                R_x, t_x, R_l, t_l, m.relative_rotation, m.relative_translation
-            )
+                R_x, t_x, R_l, t_l,
+                np.array([m.relative_rotation for m in measurements]),
+                np.array([m.relative_translation for m in measurements]),
+            )  # fmt: skip
             H_x, H_l = pose_residual_jacobians(R_x, t_x, R_l, t_l)
             return residual, H_x, H_l
         z_pred, H_x, H_l = predict_point_jacobians_batch(R_x, t_x, rows[:, 9:])
-        return point_residual(z_pred, m.vector), H_x, H_l
+        return point_residual(z_pred, np.array([m.vector for m in measurements])), H_x, H_l

@@ -59,16 +59,19 @@ def predict_point_jacobians_batch(
 
 
 def world_point_jacobian_pose(R: np.ndarray, p_body: np.ndarray) -> np.ndarray:
-    """d(R p_body + t) / d(pose tangent), 3x6: where a measured point lands, moved by the pose."""
-    return R @ np.hstack([-skew(p_body), np.eye(3)])
+    """d(R p_body + t) / d(pose tangent), 3x6 (or (n, 3, 6) for (n, 3) points): where a
+    measured point lands, moved by the pose."""
+    p_body = np.asarray(p_body, dtype=float)
+    identity = np.broadcast_to(np.eye(3), (*p_body.shape[:-1], 3, 3))
+    return R @ np.concatenate([-skew(p_body), identity], axis=-1)
 
 
 def world_point_covariance(R: np.ndarray, z: np.ndarray, covariance: np.ndarray) -> np.ndarray:
     """Covariance of the world position a point detection z = (bearing, elevation, range)
     gives from a pose of rotation R, its (b, e, r) `covariance` taken through the inverse
-    measurement model to first order."""
+    measurement model to first order. Stacked: (n, 3) detections, (n, 3, 3) covariances."""
     G = R @ np.linalg.inv(bearing_elevation_range_jacobian(point_from_bearing_elevation_range(z)))
-    return G @ covariance @ G.T
+    return G @ covariance @ np.swapaxes(G, -1, -2)
 
 
 def pose_residual_batch(

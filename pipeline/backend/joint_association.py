@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -78,27 +78,39 @@ class KeyframeProblem:
     block_offsets: np.ndarray  # (slots,) first row of each landmark block
     block_dims: np.ndarray  # (slots,)
     gate_confidence: float  # joint compatibility's chi-square confidence
+    # (detection, option) -> its rows of J and of J Sigma: the search stacks the same pairs
+    # into many trial assignments.
+    _rows: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = field(
+        default_factory=dict, compare=False, repr=False
+    )
+
+    def pair_rows(self, i: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Detection i's option k: its rows of the stacked Jacobian J (in the pose and its
+        landmark's block) and of J Sigma."""
+        rows = self._rows.get((i, k))
+        if rows is None:
+            det = self.detections[i]
+            slot = det.slots[k]
+            start, width = self.block_offsets[slot], self.block_dims[slot]
+            J = np.zeros((det.dim, self.covariance.shape[0]))
+            J[:, :6] = det.pose_jacobians[k]
+            J[:, start : start + width] = det.landmark_jacobians[k]
+            rows = self._rows[i, k] = (J, J @ self.covariance)
+        return rows
 
 
 def _stack(problem: KeyframeProblem, pairs: list[tuple[int, int]]):
     """Innovations and their covariance S = J Sigma J^T + Gamma for (detection, option) pairs."""
-    rows = sum(problem.detections[i].dim for i, _ in pairs)
-    n = problem.covariance.shape[0]
-    J = np.zeros((rows, n))
-    nu = np.zeros(rows)
-    gamma = np.zeros((rows, rows))
+    rows = [problem.pair_rows(i, k) for i, k in pairs]
+    J = np.concatenate([r[0] for r in rows])
+    nu = np.concatenate([problem.detections[i].residuals[k] for i, k in pairs])
+    gamma = np.zeros((len(nu), len(nu)))
     r = 0
-    for i, k in pairs:
-        det = problem.detections[i]
-        d = det.dim
-        slot = det.slots[k]
-        start, width = problem.block_offsets[slot], problem.block_dims[slot]
-        J[r : r + d, :6] = det.pose_jacobians[k]
-        J[r : r + d, start : start + width] = det.landmark_jacobians[k]
-        nu[r : r + d] = det.residuals[k]
-        gamma[r : r + d, r : r + d] = det.covariance
+    for i, _ in pairs:
+        d = problem.detections[i].dim
+        gamma[r : r + d, r : r + d] = problem.detections[i].covariance
         r += d
-    return nu, J @ problem.covariance @ J.T + gamma
+    return nu, np.concatenate([r[1] for r in rows]) @ J.T + gamma
 
 
 def joint_log_likelihood(

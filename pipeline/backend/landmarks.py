@@ -43,6 +43,8 @@ class SpatialHash:
         self._cells: dict[tuple[int, int, int], set[int]] = defaultdict(set)
         self._where: dict[int, tuple[int, int, int]] = {}
         self.positions: dict[int, np.ndarray] = {}
+        # The same positions by item (ids are small non-negative ints), for gathers in one call
+        self._table = np.full((0, 3), np.nan)
 
     def _cell(self, position: np.ndarray) -> tuple[int, int, int]:
         return tuple(math.floor(c / self.cell_size) for c in position)  # type: ignore[return-value]
@@ -62,6 +64,11 @@ class SpatialHash:
             self._cells[cell].add(item)
             self._where[item] = cell
         self.positions[item] = position
+        if item >= len(self._table):
+            grown = np.full((max(item + 1, 2 * len(self._table)), 3), np.nan)
+            grown[: len(self._table)] = self._table
+            self._table = grown
+        self._table[item] = position
 
     def remove(self, item: int) -> None:
         cell = self._where.pop(item)
@@ -69,29 +76,37 @@ class SpatialHash:
         if not self._cells[cell]:
             del self._cells[cell]
         del self.positions[item]
+        self._table[item] = np.nan
 
     def query(self, center: np.ndarray, radius: float) -> list[int]:
         """Ids within `radius` of `center`, in increasing order (deterministic)."""
-        center = np.asarray(center, dtype=float)
-        lo = self._cell(center - radius)
-        hi = self._cell(center + radius)
-        span = [high - low + 1 for low, high in zip(lo, hi, strict=True)]
-        if span[0] * span[1] * span[2] > len(self._cells):
+        return self.query_many(np.reshape(center, (1, 3)), np.array([radius]))[0]
+
+    def query_many(self, centers: np.ndarray, radii: np.ndarray) -> list[list[int]]:
+        """`query` of (n, 3) centres with (n,) radii: the items of every cell the balls' boxes
+        touch are gathered once, and each ball keeps those within its radius."""
+        centers = np.asarray(centers, dtype=float)
+        radii = np.asarray(radii, dtype=float)
+        lo = np.floor((centers - radii[:, None]) / self.cell_size).astype(int)
+        hi = np.floor((centers + radii[:, None]) / self.cell_size).astype(int)
+        if np.any(np.prod(hi - lo + 1, axis=1) > len(self._cells)):
             # A radius wider than the occupied map: every item is a candidate.
-            items = list(self.positions)
+            items = set(self.positions)
         else:
-            items = [
-                item
-                for i in range(lo[0], hi[0] + 1)
-                for j in range(lo[1], hi[1] + 1)
-                for k in range(lo[2], hi[2] + 1)
-                for item in self._cells.get((i, j, k), ())
-            ]
+            cells = {
+                (i, j, k)
+                for low, high in zip(lo.tolist(), hi.tolist(), strict=True)
+                for i in range(low[0], high[0] + 1)
+                for j in range(low[1], high[1] + 1)
+                for k in range(low[2], high[2] + 1)
+            }
+            items = set().union(*(self._cells.get(cell, ()) for cell in cells))
         if not items:
-            return []
-        offsets = np.array([self.positions[item] for item in items]) - center
-        inside = np.einsum("ij,ij->i", offsets, offsets) <= radius * radius
-        return sorted(item for item, keep in zip(items, inside, strict=True) if keep)
+            return [[] for _ in radii]
+        ids = np.array(sorted(items))
+        offsets = self._table[ids][None] - centers[:, None]
+        inside = np.einsum("nmi,nmi->nm", offsets, offsets) <= (radii * radii)[:, None]
+        return [ids[row].tolist() for row in inside]
 
 
 @dataclass
@@ -169,3 +184,16 @@ class LandmarkMap:
 
     def near(self, kind: LandmarkKind, center: np.ndarray, radius: float) -> list[int]:
         return self._index[kind].query(center, radius)
+
+    def near_many(
+        self, kinds: list[LandmarkKind], centers: np.ndarray, radii: np.ndarray
+    ) -> list[list[int]]:
+        """`near` of several (kind, centre, radius), each kind's searched together."""
+        out: list[list[int]] = [[] for _ in kinds]
+        for kind in LandmarkKind:
+            rows = [i for i, k in enumerate(kinds) if k is kind]
+            if rows:
+                found = self._index[kind].query_many(centers[rows], radii[rows])
+                for i, ids in zip(rows, found, strict=True):
+                    out[i] = ids
+        return out

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from pipeline.backend.movement import MovementThresholds
+from pipeline.backend.movement import MovementThresholds, is_landmark_key
 from pipeline.config import Isam2Config
 from pipeline.errors import SolverError
 
@@ -93,17 +93,13 @@ def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -
     first = 1 if len(keys) >= 3 else 0
     groups = gtsam.KeyGroupMap()
     for key in keys:
-        groups.insert2(key, first if _is_pose_key(key) else first + 1)
+        groups.insert2(key, first + 1 if is_landmark_key(key) else first)
     return groups
-
-
-def _is_pose_key(key: int) -> bool:
-    return gtsam.Symbol(key).chr() == ord("x")
 
 
 def _landmark_keys(factor: gtsam.NonlinearFactor) -> list[int]:
     keys = factor.keys()  # a KeyVector, not a dict
-    return [k for k in keys if not _is_pose_key(k)]
+    return [k for k in keys if is_landmark_key(k)]
 
 
 def relinearization_thresholds(

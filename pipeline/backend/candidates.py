@@ -94,10 +94,11 @@ class _Screened:
     ids: np.ndarray  # landmarks that may pass the gate
     semantic: np.ndarray
     searched: int  # how many landmarks the spatial search returned
-    residual: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    H_x: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    H_l: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    pose_part: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    # Of each landmark kept, once scored (`scored`): h(x, l) - z, its Jacobians, H_x P H_x^T.
+    residual: np.ndarray | None = None
+    H_x: np.ndarray | None = None
+    H_l: np.ndarray | None = None
+    pose_part: np.ndarray | None = None
     sure: Candidates | None = None  # decided without joint marginals
 
     @staticmethod
@@ -347,7 +348,7 @@ class CandidateScorer:
             pose_part = H_x @ pose_cov @ np.swapaxes(H_x, 1, 2)
             landmark_cov = np.stack([covariance_bound(self.solver, self.landmarks, j) for j in ids])
             landmark_part = H_l @ landmark_cov @ np.swapaxes(H_l, 1, 2)
-            gamma = np.stack([measurements[i].covariance for i in det])
+            gamma = np.repeat([measurements[i].covariance for i in rows], counts, axis=0)
             bound_d2 = assoc.mahalanobis_squared_batch(
                 residual, 2.0 * (pose_part + landmark_part) + gamma
             )
@@ -379,7 +380,6 @@ class CandidateScorer:
             if not rows:
                 continue
             counts = [len(screened[i].ids) for i in rows]
-            det = np.repeat(rows, counts)
             ids = np.concatenate([screened[i].ids for i in rows])
             sigma_xl = np.stack([joints[int(j)][0] for j in ids])
             sigma_ll = np.stack([joints[int(j)][1] for j in ids])
@@ -389,7 +389,7 @@ class CandidateScorer:
             cross = hx @ sigma_xl @ np.swapaxes(hl, 1, 2)
             R = np.concatenate([screened[i].pose_part for i in rows])
             R = R + cross + np.swapaxes(cross, 1, 2) + hl @ sigma_ll @ np.swapaxes(hl, 1, 2)
-            R = R + np.stack([measurements[i].covariance for i in det])
+            R = R + np.repeat([measurements[i].covariance for i in rows], counts, axis=0)
             R = 0.5 * (R + np.swapaxes(R, 1, 2))
             d2 = assoc.mahalanobis_squared_batch(residual, R)
             passed = d2 <= assoc.chi2_gate(measurements[rows[0]].dim, self.confidence)

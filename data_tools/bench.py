@@ -21,6 +21,9 @@ Parts (all by default, or `--only read,backend,victoria,isam2,mixture,viz,fronte
 - memory (only when asked, `--only memory`: the replays take minutes): peak memory and time of
   `inspect` and `replay --method known` on logs of 10,000 and 50,000 poses.
 
+`--joint-ages METHOD [--log LOG]`: one replay's joint marginals by who asks and by the age of
+their oldest landmark, calls and seconds.
+
 `--profile METHOD [--log LOG]`: one replay under cProfile (the KITTI-05-size log by default):
 where its time goes (GTSAM's calls, numpy's, the rest of Python) and the functions with the
 most time of their own.
@@ -197,6 +200,50 @@ def time_shares(stats: pstats.Stats) -> dict[str, float]:
     return shares
 
 
+def joint_ages(log_path: Path, method: str) -> None:
+    """Every joint marginal one replay asks iSAM2 for, by who asks and by how many keyframes
+    ago the oldest landmark in it was last seen: calls and seconds (the Bayes tree makes a
+    joint with a landmark seen long ago expensive; `bench_isam2.joint_marginal_ms`)."""
+    from pipeline.backend.movement import is_landmark_key, key_index
+    from pipeline.backend.solver import Isam2Solver
+    from pipeline.config import load_config
+    from pipeline.log import read_log
+    from pipeline.replay import keyframes, new_backend
+
+    log = read_log(log_path)
+    backend = new_backend(log, method, load_config())
+    calls: list[tuple[str, int, float]] = []
+    asked = Isam2Solver.joint_covariance
+
+    def timed(solver: Isam2Solver, keys: list[int]) -> np.ndarray:
+        start = time.perf_counter()
+        out = asked(solver, keys)
+        seconds = time.perf_counter() - start
+        last_seen = backend.context.last_seen
+        ages = [
+            backend.num_poses - last_seen.get(key_index(k), -(10**9))
+            for k in keys
+            if is_landmark_key(k)
+        ]
+        calls.append((sys._getframe(1).f_code.co_name, max(ages, default=0), seconds))
+        return out
+
+    Isam2Solver.joint_covariance = timed  # type: ignore[method-assign]
+    try:
+        for odometry, detections in keyframes(log):
+            backend.add_keyframe(odometry, detections)
+    finally:
+        Isam2Solver.joint_covariance = asked  # type: ignore[method-assign]
+    print(f"== joint marginals of {method} on {log_path}, by the age of their oldest landmark")
+    print(f"{'asked by':<16}{'keyframes ago':>16}{'calls':>8}{'seconds':>9}")
+    spans = [(0, 30), (31, 100), (101, 1000), (1001, 10**9)]
+    for who in sorted({c[0] for c in calls}):
+        for low, high in spans:
+            mine = [c for c in calls if c[0] == who and low <= c[1] <= high]
+            span = f"{low}-{high}" if high < 10**9 else f"> {low - 1}"
+            print(f"{who:<16}{span:>16}{len(mine):>8}{sum(c[2] for c in mine):>9.2f}")
+
+
 def profile_one(log_path: Path, method: str, top: int = 25) -> None:
     """One replay of `log_path` by `method` under cProfile, summarised."""
     profiler = cProfile.Profile()
@@ -253,8 +300,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pairs", type=int, default=3, help="victoria's pairs (default 3)")
     parser.add_argument("--run-one", nargs=3, metavar=("LOG", "METHOD", "OVERRIDES"))
     parser.add_argument("--profile", metavar="METHOD", help="profile one replay (cProfile)")
+    parser.add_argument(
+        "--joint-ages", metavar="METHOD", help="one replay's joint marginals, by landmark age"
+    )
     parser.add_argument("--log", type=Path, help="--profile's log (default: KITTI-05-size)")
     args = parser.parse_args(argv)
+    if args.joint_ages:
+        args.out.mkdir(parents=True, exist_ok=True)
+        joint_ages(args.log or simulated_log(args.out, "kitti05-cars"), args.joint_ages)
+        return 0
     if args.profile:
         args.out.mkdir(parents=True, exist_ok=True)
         profile_one(args.log or simulated_log(args.out, "kitti05-cars"), args.profile)

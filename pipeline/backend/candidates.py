@@ -189,8 +189,8 @@ def search_regions(
     if poses:
         p_body[is_pose] = np.array([m.relative_translation for m in poses])
         R_z = R @ np.array([m.relative_rotation for m in poses])
-        translation = np.array([m.covariance[3:, 3:] for m in poses])
-        measured[is_pose] = R_z @ translation @ np.swapaxes(R_z, 1, 2)
+        translation_covariance = np.array([m.covariance[3:, 3:] for m in poses])
+        measured[is_pose] = R_z @ translation_covariance @ np.swapaxes(R_z, 1, 2)
     Jx = world_point_jacobian_pose(R, p_body)
     world_cov = Jx @ pose_covariance @ np.swapaxes(Jx, 1, 2) + measured
     spread = np.sqrt(np.maximum(np.linalg.eigvalsh(world_cov)[:, -1], 0.0))

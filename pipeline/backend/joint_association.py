@@ -101,16 +101,17 @@ class KeyframeProblem:
 
 def _stack(problem: KeyframeProblem, pairs: list[tuple[int, int]]):
     """Innovations and their covariance S = J Sigma J^T + Gamma for (detection, option) pairs."""
-    rows = [problem.pair_rows(i, k) for i, k in pairs]
-    J = np.concatenate([r[0] for r in rows])
+    blocks = [problem.pair_rows(i, k) for i, k in pairs]
+    J = np.concatenate([jacobian for jacobian, _ in blocks])
+    J_sigma = np.concatenate([product for _, product in blocks])
     nu = np.concatenate([problem.detections[i].residuals[k] for i, k in pairs])
     gamma = np.zeros((len(nu), len(nu)))
-    r = 0
+    row = 0
     for i, _ in pairs:
         d = problem.detections[i].dim
-        gamma[r : r + d, r : r + d] = problem.detections[i].covariance
-        r += d
-    return nu, np.concatenate([r[1] for r in rows]) @ J.T + gamma
+        gamma[row : row + d, row : row + d] = problem.detections[i].covariance
+        row += d
+    return nu, J_sigma @ J.T + gamma
 
 
 def joint_log_likelihood(

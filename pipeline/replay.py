@@ -73,7 +73,7 @@ def pose_stamps_s(log: DetectionLog) -> np.ndarray:
     return np.array(log.pose_stamps_ns(), dtype=np.int64) / 1e9
 
 
-def _check_inputs(log: DetectionLog, method: str) -> None:
+def check_inputs(log: DetectionLog, method: str) -> None:
     if method == "known":
         for index, message in enumerate(log.detections):
             for k, detection in enumerate(message.detections):
@@ -216,7 +216,7 @@ def replay(
     out_dir = Path(out_dir)
     try:
         log = read_log(log_path, load_images=sink.wants_images)
-        _check_inputs(log, method)
+        check_inputs(log, method)
         with outputs.OutputFolder(out_dir) as folder, solver_failures():
             sink.start(log, method)
             start = time.perf_counter()

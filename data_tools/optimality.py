@@ -25,7 +25,8 @@ from pipeline.cli import method_list
 from pipeline.config import Config, load_config
 from pipeline.errors import InputError, SolverError
 from pipeline.log import read_log
-from pipeline.replay import check_inputs, compute_metrics, keyframes, new_backend, solver_failures
+from pipeline.replay import check_inputs, compute_metrics, run_backend, solver_failures
+from pipeline.viz.sink import NullSink
 
 
 @dataclass(frozen=True)
@@ -50,9 +51,7 @@ def check_optimality(log_path: Path, method: str, config: Config) -> Optimality:
     log = read_log(log_path)
     check_inputs(log, method)
     with solver_failures():  # what GTSAM throws ends as one SolverError line
-        backend = new_backend(log, method, config)
-        for odometry, detections in keyframes(log):
-            backend.add_keyframe(odometry, detections)
+        backend = run_backend(log, method, config, NullSink(), progress=False)
         result = backend.result()
         cost, optimum_cost, optimum = backend.solver.batch_optimum()
     poses = [optimum.atPose3(X(i)) for i in range(len(result.poses))]

@@ -259,12 +259,9 @@ class Isam2Solver:
         is nearly singular. Incremental steps from there (QR and Dogleg included) kept the bend
         and grew it, to tens of metres with known association (indoor-tags noise x6, a city
         grid); LM's damped iterations undo it, and the conditioning comes back with it."""
-        graph, values = self._graph(theta)
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(self.config.batch_iterations)
         solved, what = theta, "in the batch solve"
         try:
-            solved = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+            solved = self._batch_solve(*self._graph(theta))
             what = "after the batch solve"
             return self._rebuild(self.factorization, solved)
         except RuntimeError as exc:
@@ -279,10 +276,14 @@ class Isam2Solver:
         estimate solves the graph as linearised where the variables stood. The factors and
         the linearisation point stay as they were (`data_tools/optimality.py`)."""
         graph, values = self._graph(self.estimate())
+        optimum = self._batch_solve(graph, values)
+        return graph.error(values), graph.error(optimum), optimum
+
+    def _batch_solve(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> gtsam.Values:
+        """Levenberg-Marquardt on `graph` from `values`, at most `batch_iterations` iterations."""
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.batch_iterations)
-        optimum = gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
-        return graph.error(values), graph.error(optimum), optimum
+        return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
 
     def _rebuild_with_qr(self, theta: gtsam.Values) -> gtsam.ISAM2Result:
         try:

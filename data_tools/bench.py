@@ -24,6 +24,10 @@ Parts (all by default, or `--only read,backend,victoria,isam2,mixture,viz,fronte
 `--joint-ages METHOD [--log LOG]`: one replay's joint marginals by who asks and by the age of
 their oldest landmark, calls and seconds.
 
+`--tree METHOD [--log LOG] [--keyframes K]`: the Bayes tree after one replay (or its first K
+keyframes), and what GTSAM's marginals of some of its landmarks cost there: alone, jointly
+with the newest pose, and all of them jointly with it in one query.
+
 `--profile METHOD [--log LOG]`: one replay under cProfile (the KITTI-05-size log by default):
 where its time goes (GTSAM's calls, numpy's, the rest of Python) and the functions with the
 most time of their own.
@@ -42,6 +46,7 @@ import sys
 import time
 from pathlib import Path
 
+import gtsam
 import numpy as np
 
 from data_tools.bench_memory import peak_kb
@@ -244,6 +249,62 @@ def joint_ages(log_path: Path, method: str) -> None:
             print(f"{who:<16}{span:>16}{len(mine):>8}{sum(c[2] for c in mine):>9.2f}")
 
 
+def tree_costs(log_path: Path, method: str, limit: int | None = None, sample: int = 20) -> None:
+    """The Bayes tree after replaying `log_path` (its first `limit` keyframes), and the ms of
+    marginal queries there for `sample` of its landmarks spread over their ids; then the same
+    for the same graph eliminated anew in batch (COLAMD's ordering of the whole graph): why a
+    joint with an old landmark costs what it costs, and whether another ordering would help."""
+    from pipeline.config import load_config
+    from pipeline.log import read_log
+    from pipeline.replay import keyframes, new_backend
+
+    log = read_log(log_path)
+    backend = new_backend(log, method, load_config())
+    for k, (odometry, detections) in enumerate(keyframes(log)):
+        if limit is not None and k >= limit:
+            break
+        backend.add_keyframe(odometry, detections)
+    L = gtsam.symbol_shorthand.L
+    isam = backend.solver.isam
+    ids = [j for j in sorted(backend.landmarks.landmarks) if isam.valueExists(L(j))]
+    chosen = [ids[i] for i in np.unique(np.linspace(0, len(ids) - 1, sample).astype(int))]
+    print(f"== {method} on {log_path}, after {backend.num_poses} poses")
+    _print_tree_costs("iSAM2's tree", backend, ids, chosen)
+    backend.solver.update(anew=True)
+    _print_tree_costs("the same graph eliminated anew", backend, ids, chosen)
+
+
+def _print_tree_costs(what: str, backend, ids: list[int], chosen: list[int]) -> None:
+    from data_tools.bench_isam2 import _timed_ms, bayes_tree_shape
+
+    isam = backend.solver.isam
+    X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
+    newest = X(backend.num_poses - 1)
+    shape = bayes_tree_shape(isam)
+    depths = np.array([shape.depth[f"l{j}"] for j in ids])
+    print(
+        f"{what}: {shape.cliques} cliques; the root holds {shape.root_frontals} variables, the "
+        f"largest clique {shape.largest_frontals}; landmarks' depth mean {depths.mean():.1f}, "
+        f"max {depths.max()}"
+    )
+    print(f"  {'ms of a query (first, again)':<32}{'marginal':>18}{'joint with newest pose':>26}")
+    for j in chosen:
+        marginal = _timed_ms(lambda j=j: isam.marginalCovariance(L(j)), repeats=3)
+        joint = _timed_ms(lambda j=j: isam.jointMarginalCovariance([newest, L(j)]), repeats=3)
+        ago = backend.num_poses - 1 - backend.context.last_seen.get(j, 0)
+        print(
+            f"  l{j:<6} depth {shape.depth[f'l{j}']:>4}, seen {ago:>5} ago"
+            f"{marginal[0]:>9.2f}{marginal[1]:>9.2f}{joint[0]:>13.2f}{joint[1]:>13.2f}"
+        )
+    together = _timed_ms(
+        lambda: isam.jointMarginalCovariance([newest, *[L(j) for j in chosen]]), repeats=3
+    )
+    print(
+        f"  all {len(chosen)} in one joint with the newest pose: {together[0]:.2f}, "
+        f"{together[1]:.2f} ms"
+    )
+
+
 def profile_one(log_path: Path, method: str, top: int = 25) -> None:
     """One replay of `log_path` by `method` under cProfile, summarised."""
     profiler = cProfile.Profile()
@@ -303,8 +364,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--joint-ages", metavar="METHOD", help="one replay's joint marginals, by landmark age"
     )
-    parser.add_argument("--log", type=Path, help="--profile's log (default: KITTI-05-size)")
+    parser.add_argument(
+        "--tree", metavar="METHOD", help="the Bayes tree after a replay, and its marginals' cost"
+    )
+    parser.add_argument("--keyframes", type=int, help="--tree: replay only this many keyframes")
+    parser.add_argument(
+        "--log",
+        type=Path,
+        help="the log of --profile, --joint-ages, --tree (default: KITTI-05-size)",
+    )
     args = parser.parse_args(argv)
+    if args.tree:
+        args.out.mkdir(parents=True, exist_ok=True)
+        tree_costs(args.log or simulated_log(args.out, "kitti05-cars"), args.tree, args.keyframes)
+        return 0
     if args.joint_ages:
         args.out.mkdir(parents=True, exist_ok=True)
         joint_ages(args.log or simulated_log(args.out, "kitti05-cars"), args.joint_ages)

@@ -18,13 +18,20 @@ Bayes tree (`joint_marginal_ms`): with the newest pose in the root, a landmark s
 sits deep, and GTSAM computes the shortcut of its clique to the root again at every joint
 query (a single marginal is cached after its first call; the joint costs as much again). Two
 old landmarks seen together share a deep ancestor, and their joint costs a small fraction.
+On a replay's loopy map the depth is small and the root clique large (`tree_shape`; `python -m
+data_tools.bench --tree METHOD --log LOG`): each step of that shortcut is conditioned on the
+whole root clique, which is what a joint with an old landmark pays there.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import sys
+import tempfile
 import time
+from dataclasses import dataclass
+from pathlib import Path
 
 import gtsam
 import numpy as np
@@ -106,6 +113,60 @@ def joint_marginal_ms(poses: int) -> dict[str, tuple[float, float]]:
             lambda: isam.jointMarginalCovariance([old, L(1)])
         ),
     }
+
+
+@dataclass(frozen=True)
+class TreeShape:
+    """A Bayes tree's shape: how many cliques, the frontal variables of its largest root and
+    of its largest clique, and each variable's depth (its clique's distance from a root)."""
+
+    cliques: int
+    root_frontals: int
+    largest_frontals: int
+    depth: dict[str, int]  # variable name ("x12", "l3") -> depth of the clique it is frontal in
+
+
+_NODE = re.compile(r'^(\d+)\[label="([^"]*)"\];$')
+_EDGE = re.compile(r"^(\d+)->(\d+)$")
+
+
+def tree_shape(dot: str) -> TreeShape:
+    """The shape of a Bayes tree from GTSAM's `saveGraph` text: a node per clique labelled
+    "frontals : separator" (a root has no separator), an edge from each parent to its child."""
+    frontals: dict[str, list[str]] = {}
+    parent: dict[str, str] = {}
+    for line in dot.splitlines():
+        line = line.strip()
+        if node := _NODE.match(line):
+            names = node.group(2).split(":")[0]
+            frontals[node.group(1)] = [n.strip() for n in names.split(",") if n.strip()]
+        elif edge := _EDGE.match(line):
+            parent[edge.group(2)] = edge.group(1)
+    depths: dict[str, int] = {}
+    for clique in frontals:  # each walk stops at a clique already measured
+        path = []
+        while clique not in depths and clique in parent:
+            path.append(clique)
+            clique = parent[clique]
+        depth = depths.setdefault(clique, 0)
+        for below in reversed(path):
+            depth += 1
+            depths[below] = depth
+    roots = [c for c in frontals if c not in parent]
+    return TreeShape(
+        cliques=len(frontals),
+        root_frontals=max((len(frontals[c]) for c in roots), default=0),
+        largest_frontals=max((len(f) for f in frontals.values()), default=0),
+        depth={name: depths[c] for c, names in frontals.items() for name in names},
+    )
+
+
+def bayes_tree_shape(isam: gtsam.ISAM2) -> TreeShape:
+    """`tree_shape` of an iSAM2's Bayes tree (written by GTSAM to a file, read back)."""
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "tree.dot"
+        isam.saveGraph(str(path))
+        return tree_shape(path.read_text())
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -51,3 +51,44 @@ def test_the_isam2_chain_bench_reports_each_stretch_of_the_chain():
     rows = chain_update_ms(200, 50)
     assert [poses for poses, _ in rows] == [50, 100, 150, 200]
     assert all(np.isfinite(ms) and ms > 0 for _, ms in rows)
+
+
+def test_a_bayes_tree_s_shape_is_read_from_gtsam_s_drawing():
+    from data_tools.bench_isam2 import tree_shape
+
+    # root {x3, x4}; below it {x2 : x3} and {l0, l1 : x3, x4}; below {x2} the clique {x1 : x2}
+    dot = """digraph G{
+    1[label="x3, x4"];
+    1->2
+    2[label="x2 : x3"];
+    2->4
+    4[label="x1 : x2"];
+    1->3
+    3[label="l0, l1 : x3, x4"];
+    }"""
+    shape = tree_shape(dot)
+    assert shape.cliques == 4
+    assert shape.root_frontals == 2 and shape.largest_frontals == 2
+    assert shape.depth == {"x3": 0, "x4": 0, "x2": 1, "l0": 1, "l1": 1, "x1": 2}
+
+
+def test_an_isam2_chain_s_tree_has_every_pose_once_and_the_newest_in_the_root():
+    from data_tools.bench_isam2 import bayes_tree_shape
+
+    isam = gtsam.ISAM2()
+    noise = gtsam.noiseModel.Isotropic.Sigma(6, 0.1)
+    step = gtsam.Pose3(gtsam.Rot3(), gtsam.Point3(1.0, 0.0, 0.0))
+    X = gtsam.symbol_shorthand.X
+    for k in range(30):
+        graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        if k == 0:
+            graph.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), noise))
+        else:
+            graph.add(gtsam.BetweenFactorPose3(X(k - 1), X(k), step, noise))
+        values.insert(X(k), gtsam.Pose3(gtsam.Rot3(), gtsam.Point3(float(k), 0.0, 0.0)))
+        isam.update(graph, values)
+    shape = bayes_tree_shape(isam)
+    assert sorted(shape.depth) == sorted(f"x{k}" for k in range(30))
+    assert shape.depth["x29"] == 0
+    # a chain's tree is a path: every clique one deeper than its parent
+    assert sorted(set(shape.depth.values())) == list(range(shape.cliques))

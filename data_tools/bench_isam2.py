@@ -18,9 +18,10 @@ Bayes tree (`joint_marginal_ms`): with the newest pose in the root, a landmark s
 sits deep, and GTSAM computes the shortcut of its clique to the root again at every joint
 query (a single marginal is cached after its first call; the joint costs as much again). Two
 old landmarks seen together share a deep ancestor, and their joint costs a small fraction.
-On a replay's loopy map the depth is small and the root clique large (`tree_shape`; `python -m
-data_tools.bench --tree METHOD --log LOG`): each step of that shortcut is conditioned on the
-whole root clique, which is what a joint with an old landmark pays there.
+On a replay's loopy map the depth is small but some cliques hold a hundred variables or more
+(`tree_shape`; `python -m data_tools.bench --tree METHOD --log LOG`): each step of a shortcut
+through them is a dense elimination that size, which is what a joint with an old landmark
+pays there.
 """
 
 from __future__ import annotations

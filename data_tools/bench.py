@@ -275,7 +275,7 @@ def tree_costs(log_path: Path, method: str, limit: int | None = None, sample: in
 
 
 def _print_tree_costs(what: str, backend, ids: list[int], chosen: list[int]) -> None:
-    from data_tools.bench_isam2 import _timed_ms, bayes_tree_shape
+    from data_tools.bench_isam2 import bayes_tree_shape, timed_ms
 
     isam = backend.solver.isam
     X, L = gtsam.symbol_shorthand.X, gtsam.symbol_shorthand.L
@@ -289,14 +289,14 @@ def _print_tree_costs(what: str, backend, ids: list[int], chosen: list[int]) -> 
     )
     print(f"  {'ms of a query (first, again)':<32}{'marginal':>18}{'joint with newest pose':>26}")
     for j in chosen:
-        marginal = _timed_ms(lambda j=j: isam.marginalCovariance(L(j)), repeats=3)
-        joint = _timed_ms(lambda j=j: isam.jointMarginalCovariance([newest, L(j)]), repeats=3)
+        marginal = timed_ms(lambda j=j: isam.marginalCovariance(L(j)), repeats=3)
+        joint = timed_ms(lambda j=j: isam.jointMarginalCovariance([newest, L(j)]), repeats=3)
         ago = backend.num_poses - 1 - backend.context.last_seen.get(j, 0)
         print(
             f"  l{j:<6} depth {shape.depth[f'l{j}']:>4}, seen {ago:>5} ago"
             f"{marginal[0]:>9.2f}{marginal[1]:>9.2f}{joint[0]:>13.2f}{joint[1]:>13.2f}"
         )
-    together = _timed_ms(
+    together = timed_ms(
         lambda: isam.jointMarginalCovariance([newest, *[L(j) for j in chosen]]), repeats=3
     )
     print(

@@ -63,7 +63,7 @@ def chain_update_ms(poses: int, every: int) -> list[tuple[int, float]]:
     return out
 
 
-def _timed_ms(query, repeats: int = 10) -> tuple[float, float]:
+def timed_ms(query, repeats: int = 10) -> tuple[float, float]:
     """ms of a query's first call, and of each call after it on average."""
     start = time.perf_counter()
     query()
@@ -74,7 +74,7 @@ def _timed_ms(query, repeats: int = 10) -> tuple[float, float]:
 
 
 def joint_marginal_ms(poses: int) -> dict[str, tuple[float, float]]:
-    """The first call's ms and the later calls' (`_timed_ms`) of some marginal queries on a
+    """The first call's ms and the later calls' (`timed_ms`) of some marginal queries on a
     chain of `poses` poses that saw a landmark every 50 poses (each from three poses): the
     oldest landmark's marginal, joints of the newest pose with the newest and the oldest
     landmark, and of the two oldest landmarks."""
@@ -103,14 +103,14 @@ def joint_marginal_ms(poses: int) -> dict[str, tuple[float, float]]:
         isam.update(graph, values)
     last, recent, old = X(poses - 1), L((poses - 1) // 50), L(0)
     return {
-        "marginal of the oldest landmark": _timed_ms(lambda: isam.marginalCovariance(old)),
-        "joint: newest pose, newest landmark": _timed_ms(
+        "marginal of the oldest landmark": timed_ms(lambda: isam.marginalCovariance(old)),
+        "joint: newest pose, newest landmark": timed_ms(
             lambda: isam.jointMarginalCovariance([last, recent])
         ),
-        "joint: newest pose, oldest landmark": _timed_ms(
+        "joint: newest pose, oldest landmark": timed_ms(
             lambda: isam.jointMarginalCovariance([last, old])
         ),
-        "joint: the two oldest landmarks": _timed_ms(
+        "joint: the two oldest landmarks": timed_ms(
             lambda: isam.jointMarginalCovariance([old, L(1)])
         ),
     }

@@ -31,6 +31,7 @@ import re
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,7 +64,7 @@ def chain_update_ms(poses: int, every: int) -> list[tuple[int, float]]:
     return out
 
 
-def timed_ms(query, repeats: int = 10) -> tuple[float, float]:
+def timed_ms(query: Callable[[], object], repeats: int = 10) -> tuple[float, float]:
     """ms of a query's first call, and of each call after it on average."""
     start = time.perf_counter()
     query()

@@ -395,6 +395,19 @@ def test_real_kitti_clip_is_accurate_and_its_covariance_consistent():
     assert 5.35 / 3 <= figures.pose_nees_median <= 5.35 * 3
 
 
+def test_bench_refuses_a_real_clip_without_truth(tmp_path, capsys):
+    from data_tools.bench_frontend import main
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--odometry", "--real", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert f"--real {tmp_path}: no poses.txt" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        main(["--real", str(tmp_path)])
+    assert exit_info.value.code == 2
+    assert "--real goes with --odometry" in capsys.readouterr().err
+
+
 @needs_real_clip
 @pytest.mark.parametrize("every", [3, 6])
 def test_real_kitti_clip_with_frames_left_out_never_lies(every):

@@ -3,6 +3,7 @@
     python -m data_tools.bench_frontend                       # ../shared/data/real/kitti-clip-1
     python -m data_tools.bench_frontend --sequence out/seq    # any KITTI-layout sequence
     python -m data_tools.bench_frontend --odometry            # VO drift and NEES per clip
+    python -m data_tools.bench_frontend --odometry --real DIR # ... and on another real clip
 
 Without `--sequence`, the real KITTI clip in ../shared/data/real is used (1226 x 370), or where
 it is absent the renderer's `kitti-size` preset is rendered into a temporary directory (about a
@@ -16,9 +17,11 @@ the true motions, over every frame and over every 2nd, 3rd, ... frame (`--every`
 the hard case), as end-point drift (% of the path), the worst step's translation error, and the
 median NEES (squared error over the stated covariance) of the whole 6-DoF step (its median 5.35
 when the covariance is honest), of its translation and of its rotation (2.37 each). `--odometry`
-prints only these, on every clip the covariance was calibrated on (kitti-clip-1, the demo drive
-rendered at pixel noise 0.5-8) and on clips it was not (kitti-clip-1 with frames left out, the
-corridor, other seeds and noise levels, the KITTI-size render).
+prints only these, over every frame and every 2nd and 3rd frame, on kitti-clip-1, on any other
+real KITTI-layout clip with `poses.txt` given with `--real` (read from where it is: nothing is
+downloaded), and on rendered drives: those the covariance was calibrated on (the demo drive
+at pixel noise 0.5-8, seed 0; with a real clip outside the project, see configs/frontend.toml)
+and others (other seeds and noise levels, the corridor, the KITTI-size render).
 Rendered sequences (`landmarks.json`) also get every tag measured against the true corners and
 the true centre's range. With the shared tag photos: recall of the front-end's tag detector
 against libapriltag at full resolution (its defaults otherwise: no blur, refined edges,
@@ -331,14 +334,14 @@ def render_kitti_size(frames: int, root: Path) -> Path:
 
 
 ODOMETRY_HEADER = (
-    f"  {'clip':34s} {'steps':>5s} {'path m':>7s} {'drift %':>8s} {'worst cm':>9s} "
+    f"  {'clip':44s} {'steps':>5s} {'path m':>7s} {'drift %':>8s} {'worst cm':>9s} "
     f"{'NEES 6-DoF':>10s} {'transl.':>8s} {'rot.':>6s} {'lost':>5s} {'found again':>11s}"
 )
 
 
 def odometry_line(name: str, f: OdometryFigures) -> str:
     return (
-        f"  {name:34s} {f.steps:5d} {f.path_m:7.1f} {f.drift_percent:8.2f} "
+        f"  {name:44s} {f.steps:5d} {f.path_m:7.1f} {f.drift_percent:8.2f} "
         f"{100 * f.worst_step_m:9.1f} {f.pose_nees_median:10.2f} "
         f"{f.translation_nees_median:8.2f} {f.rotation_nees_median:6.2f} {f.lost:5d} "
         f"{f.recovered:11d}"
@@ -389,33 +392,36 @@ def render_with_noise(preset: str, noise: float, seed: int, frames: int, root: P
     return render_sequence(changed, root / name, seed=seed, num_frames=frames)
 
 
-def print_odometry_clips(config: FrontendConfig, root: Path) -> None:
+# Frame steps the odometry figures are given at: every frame, and every 2nd and 3rd frame (the
+# same drive two and three times as fast).
+ODOMETRY_STEPS = (1, 2, 3)
+
+
+def print_clip_steps(name: str, sequence: KittiSequence, config: FrontendConfig) -> None:
+    for every in ODOMETRY_STEPS:
+        label = name + ("" if every == 1 else f", 1 frame in {every}")
+        print(odometry_line(label, odometry_figures(sequence, config, every)), flush=True)
+
+
+def print_odometry_clips(config: FrontendConfig, root: Path, real: Sequence[Path] = ()) -> None:
     """Drift, worst step and median NEES on every clip of the covariance's calibration and
-    check: kitti-clip-1 (if present) and the rendered ones."""
+    check: kitti-clip-1 (if present), the `real` KITTI-layout clips and the rendered ones."""
     print(
         "\nvisual odometry: drift, worst step and median NEES per clip (honest: 5.35 6-DoF, "
         "2.37 translation or rotation); * = used to calibrate the covariance"
     )
     print(ODOMETRY_HEADER)
     if (REAL_CLIP / "poses.txt").exists():
-        real = KittiSequence(REAL_CLIP)
-        for every in (1, 2, 3):
-            name = "kitti-clip-1" + ("" if every == 1 else f", 1 frame in {every}")
-            print(
-                odometry_line(
-                    name + (" *" if every == 1 else ""), odometry_figures(real, config, every)
-                ),
-                flush=True,
-            )
+        print_clip_steps("kitti-clip-1", KittiSequence(REAL_CLIP), config)
     else:
         print(f"  {REAL_CLIP} is absent: real clip skipped")
+    for path in real:
+        print_clip_steps(path.name, KittiSequence(path), config)
     for preset, noise, seed, frames, calibrating in RENDERED_CLIPS:
         log.info("rendering %s at noise %g, seed %d (%d frames)", preset, noise, seed, frames)
         sequence = KittiSequence(render_with_noise(preset, noise, seed, frames, root))
-        name = f"{preset}, noise {noise:g}, seed {seed}, {frames} fr." + (
-            " *" if calibrating else ""
-        )
-        print(odometry_line(name, odometry_figures(sequence, config)), flush=True)
+        name = f"{preset}, noise {noise:g}, seed {seed}" + (" *" if calibrating else "")
+        print_clip_steps(name, sequence, config)
 
 
 def print_tags(config: FrontendConfig) -> None:
@@ -450,13 +456,26 @@ def main(argv: list[str] | None = None) -> int:
         help="only the VO figures (drift, worst step, NEES) on the covariance's calibration "
         "and check clips: kitti-clip-1 and rendered drives (renders ~1.5 min)",
     )
+    parser.add_argument(
+        "--real",
+        type=Path,
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="with --odometry: another real KITTI-layout clip with poses.txt (repeatable)",
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(message)s")
     cv2.setNumThreads(1)
     config = load_frontend_config(args.config)
+    if args.real and not args.odometry:
+        parser.error("--real goes with --odometry")
+    for path in args.real:
+        if not (path / "poses.txt").is_file():
+            parser.error(f"--real {path}: no poses.txt there (a KITTI-layout clip with truth)")
     if args.odometry:
         with tempfile.TemporaryDirectory(prefix="mmslam-bench-") as scratch:
-            print_odometry_clips(config, Path(scratch))
+            print_odometry_clips(config, Path(scratch), args.real)
         return 0
     with tempfile.TemporaryDirectory(prefix="mmslam-bench-") as scratch:
         root = args.sequence

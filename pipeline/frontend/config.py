@@ -79,7 +79,10 @@ class VoConfig:
     min_residual_scale: Annotated[float, FRACTION]
     min_sigma_rotation: Annotated[float, positive(10.0)]  # rad
     min_sigma_translation: Annotated[float, positive(1e3)]  # m
-    translation_sigma_fraction: Annotated[float, within(0.0, 1000.0)]
+    rotation_sigma_fraction: Annotated[float, within(0.0, 1.0)]
+    direction_sigma: Annotated[float, within(0.0, 1.0)]  # rad
+    disparity_offset_sigma: Annotated[float, positive(1000.0)]  # px
+    disparity_offset_memory: Annotated[float, within(1.0, 1e9)]  # keyframes
     lost_sigma_rotation: Annotated[float, positive(10.0)]  # rad
     lost_sigma_translation: Annotated[float, positive(1e6)]  # m
 

@@ -138,9 +138,9 @@ def refuse_read_only(folder: Path, given: str | os.PathLike) -> None:
     except OSError:
         return  # not there (yet): whoever makes it says what is wrong
     if stat.S_ISDIR(mode) and (mode & 0o222 == 0 or not os.access(folder, os.W_OK)):
+        where = "" if Path(given).resolve() == folder.resolve() else f"its folder {folder} is "
         raise InputError(
-            f"{given}: {'a' if Path(given) == folder else 'in a'} read-only folder "
-            f"(mode {stat.S_IMODE(mode):o}); not writing there"
+            f"{given}: {where}a read-only folder (mode {stat.S_IMODE(mode):o}); not writing there"
         )
 
 

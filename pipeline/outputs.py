@@ -6,9 +6,12 @@ it, flushed to disk and renamed over it. A set of files (a replay's output folde
 into a new folder beside DIR, flushed, and swapped with DIR in one rename (Linux's
 `renameat2(RENAME_EXCHANGE)`); the old folder is deleted after. A run killed at any instant,
 SIGKILL included, leaves DIR holding the complete old set or the complete new set, never a mix.
+A set of files in a folder that holds other things too (a sweep's report) is moved into place
+together once marked complete (`FileSet`).
 
 A writer holds a lock (flock) on its temporary file or folder while it lives. Whoever next
 writes the same target deletes the temporaries whose lock is free: those of runs that died.
+A read-only folder (its permissions, not only the system's checks, say so) is not written.
 
 Numbers are written with fixed formats, so the same run gives the same bytes.
 """
@@ -29,7 +32,7 @@ import tempfile
 import threading
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Self
 
 import numpy as np
 
@@ -305,7 +308,45 @@ def _output_folder(path: str | os.PathLike, nested: bool) -> Path:
     return target
 
 
-class OutputFolder:
+class _Staged:
+    """Outputs written into a staging folder first (`.NAME.RANDOM.staging` beside the target),
+    which is locked (flock) while its writer lives. As a context manager, the staging folder
+    is discarded on leaving the block unless the subclass's `commit` unlocked it."""
+
+    staging: Path
+    _lock: int | None
+
+    def _stage(self, target: Path, given: Path) -> None:
+        """Delete what dead writers of `target` left, and make the staging folder."""
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            clean_leftovers(target)
+            self.staging = Path(
+                tempfile.mkdtemp(prefix=f".{target.name}.", suffix=STAGING, dir=target.parent)
+            )
+        except OSError as exc:
+            raise _cannot_write(given, exc) from None
+        self._lock = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
+        fcntl.flock(self._lock, fcntl.LOCK_EX)
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+    def discard(self) -> None:
+        if self._lock is not None:
+            remove_tree(self.staging)
+            self._unlock()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.discard()
+
+
+class OutputFolder(_Staged):
     """A new version of the output folder `path`, complete or not at all. Files go into a
     staging folder beside it, which `commit` swaps with `path` in one rename. Files already in
     `path` that the new set does not write (nor names stale) are kept. As a context manager it
@@ -318,16 +359,7 @@ class OutputFolder:
         self.given = Path(path)
         self.nested = nested
         self.path = _output_folder(path, nested)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            clean_leftovers(self.path)
-            self.staging = Path(
-                tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=STAGING, dir=self.path.parent)
-            )
-        except OSError as exc:
-            raise _cannot_write(self.given, exc) from None
-        self._lock: int | None = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
-        fcntl.flock(self._lock, fcntl.LOCK_EX)
+        self._stage(self.path, self.given)
 
     def commit(self, files: dict[str, str | bytes], stale: Iterable[str] = ()) -> None:
         """Swap in the set `files` (name -> content), keeping other files already in the
@@ -394,22 +426,6 @@ class OutputFolder:
             else:
                 _link_or_copy(source, target)
 
-    def _unlock(self) -> None:
-        if self._lock is not None:
-            os.close(self._lock)
-            self._lock = None
-
-    def discard(self) -> None:
-        if self._lock is not None:
-            remove_tree(self.staging)
-            self._unlock()
-
-    def __enter__(self) -> OutputFolder:
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.discard()
-
 
 # ------------------------------------------------------- sets of files among other things
 
@@ -463,7 +479,7 @@ def _complete_marked(folder: Path, name: str) -> None:
             _move_into_place(folder / entry, folder)
 
 
-class FileSet:
+class FileSet(_Staged):
     """Files that replace their earlier versions in `folder` together, all or nothing, where
     the folder holds other things too (a sweep's report beside its runs), so that it cannot be
     swapped whole as `OutputFolder` swaps a replay's.
@@ -482,14 +498,9 @@ class FileSet:
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
             self.recover(self.folder, name)
-            clean_leftovers(self.folder / name)
-            self.staging = Path(
-                tempfile.mkdtemp(prefix=f".{name}.", suffix=STAGING, dir=self.folder)
-            )
         except OSError as exc:
             raise _cannot_write(self.folder, exc) from None
-        self._lock: int | None = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
-        fcntl.flock(self._lock, fcntl.LOCK_EX)
+        self._stage(self.folder / name, self.folder)
 
     @staticmethod
     def recover(folder: Path, name: str) -> None:
@@ -514,22 +525,6 @@ class FileSet:
             _move_into_place(marked, self.folder)
             self._unlock()
         _step("committed")
-
-    def _unlock(self) -> None:
-        if self._lock is not None:
-            os.close(self._lock)
-            self._lock = None
-
-    def discard(self) -> None:
-        if self._lock is not None:
-            remove_tree(self.staging)
-            self._unlock()
-
-    def __enter__(self) -> FileSet:
-        return self
-
-    def __exit__(self, *exc_info) -> None:
-        self.discard()
 
 
 def _link_or_copy(source: str | os.PathLike, target: str | os.PathLike) -> None:

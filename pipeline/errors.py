@@ -1,5 +1,5 @@
 """Errors the command line turns into a one-line message: exit status 2 for bad input, 1 for a
-solver that failed on good input."""
+solver or a worker process that failed on good input, 143 for SIGTERM (`Terminated`)."""
 
 import contextlib
 import errno

@@ -1,9 +1,10 @@
 """`mmslam sweep`: every run of a sweep config not yet finished, then results, tables, figures.
 
 Reads as the steps it takes: load the config, claim the output folder, find the runs already
-finished (kept), run the others (in a local process pool or on a Dask cluster), write
-results.csv from all finished runs, then the report. A failed run is logged, recorded in its
-folder's error.txt and left unfinished, so the next sweep into the same folder tries it again.
+finished (kept), run the others (in a local process pool or on a Dask cluster), then write
+the report of all finished runs (results.csv, tables.md, the figures, run.json) as one set. A
+failed run is logged, recorded in its folder's error.txt and left unfinished, so the next
+sweep into the same folder tries it again.
 """
 
 from __future__ import annotations

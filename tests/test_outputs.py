@@ -255,8 +255,11 @@ def test_a_compare_killed_between_any_two_steps_leaves_the_old_or_the_new_compar
     assert len(steps) == 19  # two runs' 8 steps (into the staging folder), and the swap's 3
     new = {**old, **comparison(tmp_path / "expected")}
     assert set(new) == {"known", "ml", "mm-nh", "notes.txt"} and new != old
+    # Each kind of step (replay's own are each killed in the test above): a run's first file
+    # and its swap into the staging folder, both runs done, then the comparison's swap.
+    kills = [1, 7, 8, 9, 16, 17, 18, 19]
     outcomes = []
-    for step in range(1, len(steps) + 1):
+    for step in kills:
         shutil.rmtree(out)
         shutil.copytree(saved, out)
         killed = subprocess.run(
@@ -269,7 +272,7 @@ def test_a_compare_killed_between_any_two_steps_leaves_the_old_or_the_new_compar
         found = comparison(out)
         assert found in (old, new), f"killed after {steps[step - 1]!r}: a mix of old and new"
         outcomes.append("old" if found == old else "new")
-    assert outcomes == ["old"] * 17 + ["new"] * 2
+    assert outcomes == ["old"] * 6 + ["new"] * 2, list(zip(kills, outcomes, strict=True))
     assert main(compare_args(small_log, "ml,mm-nh", out)) == 0  # the next run cleans up
     assert comparison(out) == new and temporaries(place) == []
 
@@ -430,8 +433,11 @@ def test_a_sweep_killed_between_any_two_steps_of_its_report_leaves_one_whole_rep
     steps = recorded_steps(args)
     restore_report(out, old, saved)
     assert steps[-1] == "committed" and len(steps) == 23
+    # Each kind of step (steps 1 and 2 write sweep.json): a file staged and the last, the
+    # staged set, the mark, its first moves, results.csv's and the last, and the end.
+    kills = [3, 4, 14, 15, 16, 17, 18, 20, 22, 23]
     outcomes = []
-    for step in range(3, len(steps) + 1):  # steps 1 and 2 write sweep.json
+    for step in kills:
         killed = subprocess.run(
             [sys.executable, "-c", KILLED_AT_STEP, str(step), *args], cwd=ROOT, capture_output=True
         )
@@ -450,8 +456,9 @@ def test_a_sweep_killed_between_any_two_steps_of_its_report_leaves_one_whole_rep
         assert found in (old, new), f"killed after {steps[step - 1]!r}: a mix of old and new"
         restore_report(out, old, saved)
     # Before the mark, the old report; from the mark on, the new one (moved in by the next).
-    assert outcomes == ["old"] * 13 + ["recovered"] * 7 + ["new"]
-    print(f"\nreport kill test: {len(outcomes)} kill points, {outcomes}")
+    found_at = list(zip(kills, outcomes, strict=True))
+    assert outcomes == ["old"] * 4 + ["recovered"] * 5 + ["new"], found_at
+    print(f"\nreport kill test: {found_at}")
     assert main(args) == 0 and report_set(out) == new and temporaries(out) == []
 
 

@@ -8,12 +8,20 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import signal
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import InputError, SolverError, describe_os_error
+from pipeline.errors import (
+    InputError,
+    SolverError,
+    Terminated,
+    WorkerError,
+    describe_os_error,
+    terminated_on_sigterm,
+)
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh", "dcsam")
 SCENARIOS = ("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
@@ -543,13 +551,17 @@ def main(argv: list[str] | None = None) -> int:
     args.argv = argv
     configure_logging(args.verbose, args.quiet)
     try:
-        return args.run(args)
+        with terminated_on_sigterm():
+            return args.run(args)
     except InputError as exc:
         print(f"mmslam {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except SolverError as exc:
+    except (SolverError, WorkerError) as exc:
         print(f"mmslam {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except Terminated:
+        print(f"mmslam {args.command}: terminated", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print(f"mmslam {args.command}: interrupted", file=sys.stderr)
         return 130

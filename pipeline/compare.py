@@ -3,9 +3,16 @@ what `mmslam replay` writes, in a folder of its own (`DIR/<method>/`); with `--r
 or `--connect`, one Rerun recording shows every run on the same timeline, side by side
 (`pipeline/viz/comparison.py`).
 
-The runs are `replay()` calls, one after another or in separate processes (`--workers`); each
-records to a file of its own, and the comparison is put together from those files once all
-runs are done. The recording is all or nothing: it is written only if every run finished.
+The runs are `replay()` calls, one after another or in worker processes (`--workers`,
+`pipeline.workers`: they die with the command however it dies); each records to a file of its
+own, and the comparison is put together from those files once all runs are done.
+
+The comparison is all or nothing, as a replay's outputs are: the runs write into a staging
+folder beside DIR (their recordings too), which is swapped with DIR in one rename once every
+run has finished (`OutputFolder`, nested); entries of DIR the runs do not write (other methods'
+folders, files of your own) are kept. A compare stopped at any instant, SIGKILL included,
+leaves DIR as it was or as the new comparison, and the next run that writes DIR deletes the
+staging folder it left. The recording is written only if every run finished.
 """
 
 from __future__ import annotations
@@ -13,15 +20,17 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import logging
-import multiprocessing
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from pipeline.errors import WorkerError
+from pipeline.outputs import OutputFolder, remove_tree
 from pipeline.replay import ReplayResult
 
 logger = logging.getLogger(__name__)
+
+RECORDINGS = ".recordings"  # the runs' own recordings, in the staging folder until the swap
 
 
 @dataclass(frozen=True)
@@ -67,13 +76,21 @@ def _run_all(runs: list[_Run], workers: int) -> list[ReplayResult]:
     raised once all have ended."""
     if workers <= 1 or len(runs) == 1:
         return [_replay(run) for run in runs]
-    context = multiprocessing.get_context("spawn")  # GTSAM and Rerun threads: no fork
-    with concurrent.futures.ProcessPoolExecutor(min(workers, len(runs)), context) as pool:
+    from concurrent.futures.process import BrokenProcessPool
+
+    from pipeline.workers import process_pool
+
+    with process_pool(min(workers, len(runs))) as pool:
         futures = [pool.submit(_replay, run) for run in runs]
         concurrent.futures.wait(futures)
     results = []
     for run, future in zip(runs, futures, strict=True):
         error = future.exception()
+        if isinstance(error, BrokenProcessPool):
+            raise WorkerError(
+                f"the worker replaying {run.method} died abruptly (killed, out of memory, or a "
+                "crash); nothing was written"
+            )
         if error is not None:
             raise error
         result = future.result()
@@ -97,8 +114,13 @@ def compare(
 ) -> list[ReplayResult]:
     """Replay `log_path` with each of `methods`, the outputs of each in `out_dir/<method>`;
     with a Rerun destination, one recording of them all."""
+    from pipeline.config import load_config
+    from pipeline.viz.comparison import map_aspect
+
     out_dir = Path(out_dir)
     methods = list(methods)
+    config = Path(config_path) if config_path is not None else None
+    load_config(config)  # a bad config is told before anything runs
     destination = None
     if rrd is not None or spawn or connect is not None:
         from pipeline.viz.stream import Destination
@@ -106,31 +128,34 @@ def compare(
         # before the runs: a bad --rrd or an absent viewer is told at once
         destination = Destination.open("mmslam compare", rrd=rrd, spawn=spawn, connect=connect)
     finished = False
-    with tempfile.TemporaryDirectory(prefix="mmslam-compare-") as parts:
-        try:
-            from pipeline.viz.comparison import map_aspect
-
+    try:
+        with OutputFolder(out_dir, nested=True) as folder:
+            recordings = folder.staging / RECORDINGS
             runs = [
                 _Run(
                     Path(log_path),
                     method,
-                    out_dir / method,
-                    Path(config_path) if config_path is not None else None,
-                    Path(parts) / f"{method}.rrd" if destination is not None else None,
+                    folder.staging / method,
+                    config,
+                    recordings / f"{method}.rrd" if destination is not None else None,
                     map_aspect(len(methods)),
                     progress and workers <= 1,
                     tuple(command) if command is not None else None,
                 )
                 for method in methods
             ]
+            if destination is not None:
+                recordings.mkdir()
             results = _run_all(runs, workers)
             if destination is not None:
                 _record(destination, Path(log_path), runs, results)
+                remove_tree(recordings)
+            folder.commit({}, stale=methods)
             finished = True
-        finally:
-            if destination is not None:
-                destination.close(finished)
-    return results
+    finally:
+        if destination is not None:
+            destination.close(finished)
+    return [dataclasses.replace(r, out_dir=out_dir / r.method) for r in results]
 
 
 def _record(destination, log_path: Path, runs: list[_Run], results: list[ReplayResult]) -> None:

@@ -55,9 +55,10 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
     """A report of the log; `valid` is False and `problem` the one-line reason when it is not."""
     report: dict[str, Any] = {"path": str(path), "valid": False, "problem": None}
     counts = _Counts()
+    problem = None  # the first, in reading order: the one `replay` stops at
     try:
         with McapFile(path) as mcap:
-            problem, validator = None, None
+            validator = None
             try:
                 validator = LogValidator(mcap.path, log_metadata(mcap))
             except LogError as exc:
@@ -75,8 +76,8 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
                     validator.finish(mcap.channels.values())
                 except LogError as exc:
                     problem = str(exc)
-    except LogError as exc:  # the container is broken: nothing more to tell
-        report["problem"] = str(exc)
+    except LogError as exc:  # the container is broken (maybe past a problem already found)
+        report["problem"] = problem if problem is not None else str(exc)
         return report
     report["topics"] = {
         topic: {

@@ -6,15 +6,19 @@ it, flushed to disk and renamed over it. A set of files (a replay's output folde
 into a new folder beside DIR, flushed, and swapped with DIR in one rename (Linux's
 `renameat2(RENAME_EXCHANGE)`); the old folder is deleted after. A run killed at any instant,
 SIGKILL included, leaves DIR holding the complete old set or the complete new set, never a mix.
+A set of files in a folder that holds other things too (a sweep's report) is moved into place
+together once marked complete (`FileSet`).
 
 A writer holds a lock (flock) on its temporary file or folder while it lives. Whoever next
 writes the same target deletes the temporaries whose lock is free: those of runs that died.
+A read-only folder (its permissions, not only the system's checks, say so) is not written.
 
 Numbers are written with fixed formats, so the same run gives the same bytes.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import errno
 import fcntl
@@ -22,10 +26,13 @@ import json
 import logging
 import os
 import shutil
+import signal
+import stat
 import tempfile
-from collections.abc import Callable, Iterable
+import threading
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Self
 
 import numpy as np
 
@@ -112,6 +119,34 @@ def _is_leftover(name: str, target: str) -> bool:
     return name.startswith(f".{target}.") and name.endswith((PART, STAGING))
 
 
+def remove_tree(path: Path) -> None:
+    """Delete the folder `path` and all it holds, read-only subfolders included (a staging
+    copy of a read-only folder); what cannot be deleted is left."""
+    with contextlib.suppress(OSError):
+        os.chmod(path, 0o700)
+    for folder, inside, _ in os.walk(path):  # top down: a folder is opened after this
+        for name in inside:
+            if not os.path.islink(entry := os.path.join(folder, name)):
+                with contextlib.suppress(OSError):
+                    os.chmod(entry, 0o700)
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def refuse_read_only(folder: Path, given: str | os.PathLike) -> None:
+    """An `InputError` if the existing folder `folder` is read-only (no write permission for
+    anyone, or none for this user): its permissions say not to write there, and even a
+    process allowed to (root) does not."""
+    try:
+        mode = folder.stat().st_mode
+    except OSError:
+        return  # not there (yet): whoever makes it says what is wrong
+    if stat.S_ISDIR(mode) and (mode & 0o222 == 0 or not os.access(folder, os.W_OK)):
+        where = "" if Path(given).resolve() == folder.resolve() else f"its folder {folder} is "
+        raise InputError(
+            f"{given}: {where}a read-only folder (mode {stat.S_IMODE(mode):o}); not writing there"
+        )
+
+
 def clean_leftovers(target: Path) -> None:
     """Delete the temporaries that dead writers of `target` left beside it."""
     try:
@@ -131,7 +166,7 @@ def clean_leftovers(target: Path) -> None:
             continue
         try:
             if path.is_dir():
-                shutil.rmtree(path, ignore_errors=True)
+                remove_tree(path)
             else:
                 path.unlink(missing_ok=True)
             logger.info("removed %s, left by a run that did not finish", path)
@@ -150,6 +185,9 @@ def atomic_output(path: Path) -> tuple[int, Path]:
     """A new temporary file beside `path` (fd, its path), locked while the fd is open, to be
     renamed onto `path` once complete; first, dead writers' temporaries are removed."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory")
+    refuse_read_only(path.parent, path)
     path.parent.mkdir(parents=True, exist_ok=True)
     clean_leftovers(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=PART, dir=path.parent)
@@ -178,8 +216,8 @@ class AtomicFile:
             os.replace(self.temporary, self.path)  # before the lock goes: no cleaner takes it
         except BaseException as exc:
             self.discard()
-            if isinstance(exc, OSError):
-                raise _named(exc, self.path) from None
+            if isinstance(exc, OSError):  # named by the target, not by the temporary
+                raise OSError(exc.errno, exc.strerror, str(self.path)) from None
             raise
         self.file.close()
         _fsync_dir(self.path.parent)
@@ -250,7 +288,7 @@ def _subfolder(folder: Path) -> str | None:
         return next((e.name for e in entries if e.is_dir(follow_symlinks=False)), None)
 
 
-def _output_folder(path: str | os.PathLike) -> Path:
+def _output_folder(path: str | os.PathLike, nested: bool) -> Path:
     """`path` as an output folder that can be replaced whole, or an InputError saying why not."""
     target = Path(path).resolve()
     if target.exists() and not target.is_dir():
@@ -258,7 +296,9 @@ def _output_folder(path: str | os.PathLike) -> Path:
     cwd = Path.cwd().resolve()
     if target == cwd or target in cwd.parents:
         raise InputError(f"{path}: holds the current directory; choose a folder of its own")
-    if target.is_dir():
+    refuse_read_only(target, path)
+    refuse_read_only(target.parent, path)
+    if target.is_dir() and not nested:
         inside = _subfolder(target)
         if inside is not None:
             raise InputError(
@@ -268,25 +308,58 @@ def _output_folder(path: str | os.PathLike) -> Path:
     return target
 
 
-class OutputFolder:
+class _Staged:
+    """Outputs written into a staging folder first (`.NAME.RANDOM.staging` beside the target),
+    which is locked (flock) while its writer lives. As a context manager, the staging folder
+    is discarded on leaving the block unless the subclass's `commit` unlocked it."""
+
+    staging: Path
+    _lock: int | None
+
+    def _stage(self, target: Path, given: Path) -> None:
+        """Delete what dead writers of `target` left, and make the staging folder."""
+        try:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            clean_leftovers(target)
+            self.staging = Path(
+                tempfile.mkdtemp(prefix=f".{target.name}.", suffix=STAGING, dir=target.parent)
+            )
+        except OSError as exc:
+            raise _cannot_write(given, exc) from None
+        self._lock = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
+        fcntl.flock(self._lock, fcntl.LOCK_EX)
+
+    def _unlock(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+    def discard(self) -> None:
+        if self._lock is not None:
+            remove_tree(self.staging)
+            self._unlock()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.discard()
+
+
+class OutputFolder(_Staged):
     """A new version of the output folder `path`, complete or not at all. Files go into a
     staging folder beside it, which `commit` swaps with `path` in one rename. Files already in
     `path` that the new set does not write (nor names stale) are kept. As a context manager it
-    discards the staging folder unless `commit` ran."""
+    discards the staging folder unless `commit` ran.
 
-    def __init__(self, path: str | os.PathLike):
+    A `nested` folder may hold folders (`mmslam compare`'s, a folder per method): what is
+    written into `staging` goes in whole, and the old folder's other entries are kept."""
+
+    def __init__(self, path: str | os.PathLike, nested: bool = False):
         self.given = Path(path)
-        self.path = _output_folder(path)
-        try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            clean_leftovers(self.path)
-            self.staging = Path(
-                tempfile.mkdtemp(prefix=f".{self.path.name}.", suffix=STAGING, dir=self.path.parent)
-            )
-        except OSError as exc:
-            raise _cannot_write(self.given, exc) from None
-        self._lock: int | None = os.open(self.staging, os.O_RDONLY | os.O_DIRECTORY)
-        fcntl.flock(self._lock, fcntl.LOCK_EX)
+        self.nested = nested
+        self.path = _output_folder(path, nested)
+        self._stage(self.path, self.given)
 
     def commit(self, files: dict[str, str | bytes], stale: Iterable[str] = ()) -> None:
         """Swap in the set `files` (name -> content), keeping other files already in the
@@ -317,7 +390,7 @@ class OutputFolder:
             os.rename(aside, self.staging)
         _fsync_dir(self.path.parent)
         _step("swapped")
-        shutil.rmtree(self.staging, ignore_errors=True)  # the old set
+        remove_tree(self.staging)  # the old set
         self._unlock()
         _step("removed the old set")
 
@@ -339,34 +412,126 @@ class OutputFolder:
         _step(f"wrote {name}")
 
     def _carry_over(self, written: set[str]) -> None:
-        """Hard-link the old folder's other files into the new one (copy where links fail)."""
-        if (inside := _subfolder(self.path)) is not None:
+        """Hard-link the old folder's other entries into the new one (copy where links fail)."""
+        if not self.nested and (inside := _subfolder(self.path)) is not None:
             raise InputError(f"{self.given}: a folder {inside!r} appeared in it; not replacing it")
+        written |= set(os.listdir(self.staging))  # what the new set holds already
         for name in os.listdir(self.path):
             old_temporary = any(_is_leftover(name, w) for w in written)
             if name in written or old_temporary:
                 continue
             source, target = self.path / name, self.staging / name
-            try:
-                os.link(source, target, follow_symlinks=False)
-            except OSError:
-                shutil.copy2(source, target, follow_symlinks=False)
+            if source.is_dir() and not source.is_symlink():
+                shutil.copytree(source, target, symlinks=True, copy_function=_link_or_copy)
+            else:
+                _link_or_copy(source, target)
 
-    def _unlock(self) -> None:
-        if self._lock is not None:
-            os.close(self._lock)
-            self._lock = None
 
-    def discard(self) -> None:
-        if self._lock is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
+# ------------------------------------------------------- sets of files among other things
+
+COMMIT = ".commit"  # a staged set marked complete: .NAME.RANDOM.commit, being moved into place
+
+
+@contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """Within the block, SIGINT and SIGTERM wait (in the main thread, where Python handles
+    them): the block's renames are not cut short; the first signal is raised after it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    wanted = (signal.SIGINT, signal.SIGTERM)
+    previous = {number: signal.signal(number, lambda n, _: caught.append(n)) for number in wanted}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        if caught:
+            signal.raise_signal(caught[0])
+
+
+@contextlib.contextmanager
+def _folder_locked(folder: Path) -> Iterator[None]:
+    """An exclusive lock on the folder itself (flock on its descriptor), while a set moves."""
+    fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def _move_into_place(marked: Path, folder: Path) -> None:
+    for name in sorted(os.listdir(marked)):
+        os.replace(marked / name, folder / name)
+        _step(f"moved {name}")
+    _fsync_dir(folder)
+    os.rmdir(marked)
+
+
+def _complete_marked(folder: Path, name: str) -> None:
+    """Move into place the sets `name` that writers marked complete and were stopped moving
+    (the caller holds the folder's lock)."""
+    for entry in sorted(os.listdir(folder)):
+        if entry.startswith(f".{name}.") and entry.endswith(COMMIT):
+            logger.info("%s: completing the set a stopped run left", folder / entry)
+            _move_into_place(folder / entry, folder)
+
+
+class FileSet(_Staged):
+    """Files that replace their earlier versions in `folder` together, all or nothing, where
+    the folder holds other things too (a sweep's report beside its runs), so that it cannot be
+    swapped whole as `OutputFolder` swaps a replay's.
+
+    The files are written into a staging folder inside `folder` (`path(name)` says where).
+    `commit` marks the set complete in one rename (`.NAME.RANDOM.staging` to
+    `.NAME.RANDOM.commit`) and then moves its files into place, with SIGINT and SIGTERM held
+    back meanwhile. Stopped before the mark, the old set stays (the next writer deletes the
+    staging folder); stopped after it (SIGKILL, a power cut), the next `FileSet` of the folder,
+    or `recover`, moves the rest of the marked set into place before anything else. As a
+    context manager it discards the staging folder unless `commit` ran."""
+
+    def __init__(self, folder: str | os.PathLike, name: str):
+        self.folder, self.name = Path(folder), name
+        refuse_read_only(self.folder, self.folder)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self.recover(self.folder, name)
+        except OSError as exc:
+            raise _cannot_write(self.folder, exc) from None
+        self._stage(self.folder / name, self.folder)
+
+    @staticmethod
+    def recover(folder: Path, name: str) -> None:
+        """Move into place what a writer of the set `name` marked complete and did not finish
+        moving (it was killed meanwhile)."""
+        with _folder_locked(folder):
+            _complete_marked(folder, name)
+
+    def path(self, name: str) -> Path:
+        """Where the file `name` of the set is written before `commit`."""
+        return self.staging / name
+
+    def commit(self) -> None:
+        _fsync_dir(self.staging)
+        _step("staged")
+        marked = self.staging.with_name(self.staging.name[: -len(STAGING)] + COMMIT)
+        with _signals_held(), _folder_locked(self.folder):
+            _complete_marked(self.folder, self.name)  # first, one a killed writer marked
+            os.rename(self.staging, marked)
+            _fsync_dir(self.folder)
+            _step("marked")
+            _move_into_place(marked, self.folder)
             self._unlock()
+        _step("committed")
 
-    def __enter__(self) -> OutputFolder:
-        return self
 
-    def __exit__(self, *exc_info) -> None:
-        self.discard()
+def _link_or_copy(source: str | os.PathLike, target: str | os.PathLike) -> None:
+    try:
+        os.link(source, target, follow_symlinks=False)
+    except OSError:
+        shutil.copy2(source, target, follow_symlinks=False)
 
 
 def write_outputs(

@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import re
+import stat
 import sys
 import tomllib
 from collections.abc import Callable
@@ -169,21 +171,103 @@ def config_path(relative: str) -> Path:
     return path if path.exists() else INSTALLED_CONFIG_DIR / relative
 
 
-def read_toml(path: Path, what: str = "config") -> dict[str, Any]:
-    """A TOML file's tables; any problem an `InputError` naming the file as `what` it is."""
+# A config file at most: the largest of configs/ is under 20 KB. Checked before it is read whole,
+# so that `--config /dev/zero` or a 2 GB file is refused at once.
+MAX_CONFIG_BYTES = 2**20
+# Arrays and tables nested in one another at most (configs/ nest three deep): tomllib recurses
+# once a level, and so do the merge and the checks, so a file of 500 `[` is refused before them.
+MAX_NESTING = 32
+# A key's length at most: an error line names the key.
+MAX_KEY_CHARS = 100
+SHOWN_CHARS = 40  # of a bad value in an error line: a 10 MB string must not make a 10 MB line
+
+# What can open or close a level of nesting in TOML text, and what hides brackets: strings
+# (multi-line ones first) and comments.
+_TOML_TOKEN = re.compile(
+    r'"""(?:[^\\]|\\.)*?"""|\'\'\'.*?\'\'\'|"(?:[^"\\\n]|\\.)*"|\'[^\'\n]*\'|#[^\n]*|[\[\]{}]',
+    re.DOTALL,
+)
+
+
+def shown(value: Any) -> str:
+    """A bad value, as an error line shows it: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
+
+
+def _read_bounded(path: Path, what: str) -> bytes:
+    """The bytes of `path`, refused unread past `MAX_CONFIG_BYTES` (a pipe or a device is read
+    no further than that)."""
+    limit = f"{what} {path}: larger than {MAX_CONFIG_BYTES // 2**20} MiB; not a config file"
     try:
         with open(path, "rb") as f:
-            return tomllib.load(f)
+            status = os.fstat(f.fileno())
+            if stat.S_ISREG(status.st_mode) and status.st_size > MAX_CONFIG_BYTES:
+                raise InputError(limit)
+            data = f.read(MAX_CONFIG_BYTES + 1)
     except FileNotFoundError:
         raise InputError(f"{what} {path}: no such file") from None
     except IsADirectoryError:
         raise InputError(f"{what} {path}: is a directory") from None
     except OSError as exc:
         raise InputError(f"{what} {path}: cannot be read ({exc.strerror})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{what} {path}: not valid TOML ({exc})") from None
+    if len(data) > MAX_CONFIG_BYTES:
+        raise InputError(limit)
+    return data
+
+
+def nesting(text: str) -> int:
+    """How deep arrays and inline tables nest in TOML `text` (a table header counts as one
+    level, an array of tables as two), without parsing it: brackets in strings and comments do
+    not count."""
+    depth = deepest = 0
+    for token in _TOML_TOKEN.finditer(text):
+        bracket = token.group()
+        if bracket in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif bracket in "]}":
+            depth = max(depth - 1, 0)
+    return deepest
+
+
+def _check_tree(table: dict[str, Any], path: Path, what: str) -> None:
+    """Refuse what dotted keys (`a.b.c...`) nest deeper than `MAX_NESTING`, and keys too long
+    to name in an error line; without recursion, as the tree may be deep."""
+    stack: list[tuple[Any, int]] = [(table, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_NESTING:
+            raise InputError(f"{what} {path}: tables nested deeper than {MAX_NESTING} levels")
+        if isinstance(value, dict):
+            for key, item in value.items():
+                if len(key) > MAX_KEY_CHARS:
+                    raise InputError(
+                        f"{what} {path}: a key of {len(key)} characters ({shown(key)}); "
+                        f"keys are at most {MAX_KEY_CHARS}"
+                    )
+                stack.append((item, depth + 1))
+        elif isinstance(value, list):
+            stack.extend((item, depth + 1) for item in value)
+
+
+def read_toml(path: Path, what: str = "config") -> dict[str, Any]:
+    """A TOML file's tables; any problem an `InputError` naming the file as `what` it is. The
+    file's size, its nesting and its keys' length are bounded (`MAX_CONFIG_BYTES`,
+    `MAX_NESTING`, `MAX_KEY_CHARS`) before anything recurses into it."""
+    data = _read_bounded(Path(path), what)
+    try:
+        text = data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(f"{what} {path}: not UTF-8 text") from None
+    if nesting(text) > MAX_NESTING:
+        raise InputError(f"{what} {path}: arrays or tables nested deeper than {MAX_NESTING} levels")
+    try:
+        table = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{what} {path}: not valid TOML ({exc})") from None
+    _check_tree(table, path, what)
+    return table
 
 
 def require(condition: bool, path: Path | str, message: str) -> None:
@@ -287,7 +371,7 @@ def explain(
     cls: type,
     table: dict[str, Any],
     noun: str = "key",
-    show: Callable[[Any], str] = repr,
+    show: Callable[[Any], str] = shown,
 ) -> str:
     """One line for msgspec's error: the dotted path of the key (or a message's field), its
     declared range or type, and the value read (as `show` shows it)."""

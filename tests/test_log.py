@@ -346,3 +346,21 @@ def test_a_pose_holds_at_most_the_detections_a_keyframe_may(tmp_path):
     with pytest.raises(LogError) as info:
         read_log(write_raw(tmp_path / "over.mcap", over))
     assert f"/detections message 2: pose 0 holds {2 * half + 1} detections" in str(info.value)
+
+
+def test_inspect_and_replay_name_the_same_first_problem(tmp_path):
+    """Issue 53: 300 messages of 1,000 detections of pose 100 (30 KB that inflate 1,500 times):
+    the reader stops at the second message, over the detections a pose may hold; `inspect`,
+    which reads on to count the topics, called it a decompression bomb."""
+    from pipeline.inspect import inspect_log
+
+    batch = [detection(bearing=0.0) for _ in range(MAX_DETECTIONS_PER_POSE)]
+    messages = [(topics.ODOMETRY, odometry(k), None) for k in range(101)]
+    messages += [(topics.DETECTIONS, detections(100, *batch), None)] * 300
+    path = write_raw(tmp_path / "many.mcap", messages)
+    with pytest.raises(LogError) as info:
+        read_log(path)
+    assert "/detections message 1: pose 100 holds 2000 detections, more than the 1000" in str(
+        info.value
+    )
+    assert inspect_log(path)["problem"] == str(info.value)

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -18,9 +20,10 @@ import numpy as np
 import pytest
 
 from data_tools.data import KITTI05_DIR
-from data_tools.scenarios import SCENARIOS, indoor_tags, simulate
+from data_tools.scenarios import SCENARIOS, city_grid, common, indoor_tags, kitti05_cars, simulate
 from data_tools.scenarios.geometry import quaternion_from_rotation, se3_exp
 from data_tools.scenarios.noise import confusion_matrix, sample_reported_classes
+from pipeline.cli import main
 from pipeline.errors import InputError
 from pipeline.log import read_log
 
@@ -567,3 +570,200 @@ def test_confusion_matrix_and_class_sampling():
         observed = np.bincount(reported[true == t], minlength=3) / 20000
         bound = SIGMAS_OF_ERROR * np.sqrt(matrix[t] * (1 - matrix[t]) / 20000)
         assert np.all(np.abs(observed - matrix[t]) <= bound)
+
+
+# --- bounded memory: runs made in blocks and pieces, sizes refused before any work ------------
+
+
+def test_pieces_keep_every_candidate_once_and_do_not_depend_on_the_blocks(monkeypatch):
+    monkeypatch.setattr(common, "DETECTIONS_PER_PIECE", 10)
+    rng = np.random.default_rng(0)
+    counts = rng.integers(0, 6, 200)
+    counts[50] = 25  # one keyframe over the limit: a piece of its own
+    pose_index = np.repeat(np.arange(200), counts)
+    landmark = rng.integers(0, 1000, len(pose_index))
+
+    def chunked(size: int):
+        for first in range(0, 200, size):
+            inside = (pose_index >= first) & (pose_index < first + size)
+            yield slice(first, min(first + size, 200)), (pose_index[inside], landmark[inside])
+
+    made = [list(common.pieces(chunked(size), extra_per_pose=0.5)) for size in (1, 7, 200)]
+    bounds = [[(p.start, p.stop) for p, _ in pieces] for pieces in made]
+    assert bounds[0] == bounds[1] == bounds[2] and len(bounds[0]) > 20
+    for piece, (poses, _) in made[1]:
+        assert np.all((poses >= piece.start) & (poses < piece.stop))
+        held = len(poses) + 0.5 * (piece.stop - piece.start)
+        assert held <= 10 or piece.stop - piece.start == 1
+    assert [s for s, _ in bounds[0]] == [0] + [e for _, e in bounds[0][:-1]]  # consecutive
+    assert bounds[0][-1][1] == 200 and (50, 51) in bounds[0]
+    np.testing.assert_array_equal(np.concatenate([p for _, (p, _) in made[1]]), pose_index)
+    np.testing.assert_array_equal(np.concatenate([m for _, (_, m) in made[1]]), landmark)
+
+
+def test_a_run_made_in_many_pieces_sees_what_a_run_made_whole_sees(tmp_path, monkeypatch):
+    """Every tag in view detected, so the pieces' draws (which differ from a whole run's) leave
+    the detections themselves as they were: the same landmarks from the same poses."""
+    config = tmp_path / "all-seen.toml"
+    config.write_text("[route]\nlength_m = 300.0\n[camera]\ndetection_probability = 1.0\n")
+    whole = simulate("indoor-tags", tmp_path / "whole.mcap", seed=1, config_path=config)
+    monkeypatch.setattr(common, "DETECTIONS_PER_PIECE", 7)
+    monkeypatch.setattr(common, "ELEMENTS_PER_BLOCK", 5000)
+    pieced = simulate("indoor-tags", tmp_path / "pieced.mcap", seed=1, config_path=config)
+    assert (pieced.num_poses, pieced.num_detections) == (whole.num_poses, whole.num_detections)
+    a, b = read_log(tmp_path / "whole.mcap"), read_log(tmp_path / "pieced.mcap")
+
+    def seen(log) -> list[list[int]]:
+        return [sorted(d.truth_landmark_id for d in m.detections) for m in log.detections]
+
+    assert seen(a) == seen(b) and whole.num_detections > 50
+    assert a.ground_truth_poses == b.ground_truth_poses
+    assert (tmp_path / "whole.mcap").read_bytes() != (tmp_path / "pieced.mcap").read_bytes()
+
+
+SHORT_RUNS = {  # a config, and the detections of a piece: several pieces
+    "city-grid": ("[route]\nlength_m = 400.0\n", 20),
+    "planar-park": ("[route]\nlength_m = 300.0\n", 20),
+    "kitti05-cars": ("", 1000),  # the real path, 2761 keyframes
+}
+
+
+@pytest.mark.parametrize("scenario", with_slow(sorted(SHORT_RUNS)))
+def test_every_scenario_makes_a_valid_log_in_pieces(tmp_path, monkeypatch, scenario):
+    config = tmp_path / "short.toml"
+    text, piece = SHORT_RUNS[scenario]
+    config.write_text(text)
+    whole = simulate(scenario, tmp_path / "whole.mcap", seed=2, config_path=config)
+    monkeypatch.setattr(common, "DETECTIONS_PER_PIECE", piece)
+    monkeypatch.setattr(common, "ELEMENTS_PER_BLOCK", 3000)
+    pieced = simulate(scenario, tmp_path / "pieced.mcap", seed=2, config_path=config)
+    log = read_log(tmp_path / "pieced.mcap")  # the contract's checks
+    assert log.num_poses == pieced.num_poses == whole.num_poses
+    assert log.num_detections == pieced.num_detections
+    assert log.ground_truth_poses == read_log(tmp_path / "whole.mcap").ground_truth_poses
+    # other draws, the same expectation: 10 standard errors of a Poisson count apart at most
+    assert abs(pieced.num_detections - whole.num_detections) < 10 * math.sqrt(whole.num_detections)
+    assert pieced.num_false_positives > 0 and whole.num_detections > 100
+
+
+# What the bounds refuse, each in one line naming the keys, before anything is built.
+TOO_LARGE = [
+    (
+        "city-grid",
+        "[grid]\nstreets_x = 100\nstreets_y = 100\nblock_x_m = 100000.0\nblock_y_m = 100000.0\n",
+        "grid.streets_x, streets_y, block_x_m, block_y_m and parking.slot_spacing_m (7 m) make "
+        "5.66e+08 parking slots; at most 100000",
+    ),
+    (
+        "city-grid",
+        "[parking]\nslot_spacing_m = 1e-3\nslot_jitter_m = 0.0\n",
+        "parking.slot_spacing_m (0.001 m) make 2.77e+06 parking slots",
+    ),
+    (  # the issue: "slot_spacing_m = 1e-6 blames slot_jitter_m"
+        "city-grid",
+        "[parking]\nslot_spacing_m = 1e-6\n",
+        "parking.slot_spacing_m (1e-06 m) make 2.77e+09 parking slots",
+    ),
+    (
+        "city-grid",
+        "[parking]\nslot_spacing_m = 0.5\n",
+        "'parking.slot_jitter_m' (0.3 m) must be < slot_spacing_m / 2 (0.25 m)",
+    ),
+    (
+        "kitti05-cars",
+        "[parking]\npath_step_m = 1e-6\n",
+        "parking.path_step_m (1e-06 m) cuts the 2206 m path into 2.21e+09 samples; at most 1000000",
+    ),
+    (
+        "kitti05-cars",
+        "[parking]\npath_step_m = 0.01\nrevisit_radius_m = 100.0\n",
+        "parking.revisit_radius_m / path_step_m (100 / 0.01) over 2.21e+05 samples makes 2.21e+09",
+    ),
+    (
+        "kitti05-cars",
+        "[parking]\ngap_min_m = 0.0\n[[vehicles]]\nname = 'ant'\nfrequency = 1.0\n"
+        "length_m = 0.01\nwidth_m = 0.01\nheight_m = 0.01\n",
+        "[[vehicles]] length_m and parking.gap_min_m (a car every 0.01 m at the closest) could "
+        "park 4.41e+05 cars",
+    ),
+    (
+        "kitti05-cars",
+        "[parking]\nmin_separation_m = 100000.0\n",
+        "parking.min_separation_m (100000 m) over cars",
+    ),
+    (
+        "indoor-tags",
+        "[floor]\ncorridor_x_m = [0.0, 2.0, 40.0]\n",
+        "'floor.corridor_x_m': corridors closer than floor.corridor_width_m + 2 "
+        "tags.junction_clearance_m (3 m)",
+    ),
+    ("indoor-tags", "[floor]\ncorridor_y_m = [0.0]\n", "'floor.corridor_y_m' needs at least two"),
+    ("indoor-tags", "[floor]\ncorridor_y_m = [5.0, 0.0]\n", "'floor.corridor_y_m' must be in incr"),
+    (
+        "indoor-tags",
+        f"[floor]\ncorridor_x_m = {[10.0 * i for i in range(60)]}\n"
+        f"corridor_y_m = {[10.0 * i for i in range(60)]}\n",
+        "floor.corridor_x_m x corridor_y_m make 3600 junctions; at most 2500",
+    ),
+    (
+        "indoor-tags",
+        "[floor]\ncorridor_width_m = 1e-6\ncorridor_x_m = [0.0, 0.01, 0.02]\n[tags]\n"
+        "junction_clearance_m = 0.0\n[route]\nlength_m = 100000.0\nwander_amplitude_m = 0\n",
+        "route.length_m (100000 m) between floor corridors 0.01 m apart makes 1.1e+07 turns",
+    ),
+]
+
+
+@pytest.mark.parametrize(("scenario", "text", "message"), TOO_LARGE)
+def test_sizes_that_would_exhaust_memory_are_refused_before_any_work(
+    tmp_path, monkeypatch, capsys, scenario, text, message
+):
+    """Issue 53: these took 4 to 16 GB, or a traceback, before."""
+    module = {"city-grid": city_grid, "indoor-tags": indoor_tags}.get(scenario)
+    if module is not None:  # the checks on the config alone come before the world is built
+        monkeypatch.setattr(module, "build_world", lambda *a: pytest.fail("built the world"))
+    else:  # kitti05-cars: once the sequence is read, before the street is made of it
+        monkeypatch.setattr(kitti05_cars, "street_of", lambda *a: pytest.fail("made the street"))
+    config = tmp_path / "large.toml"
+    config.write_text(text)
+    assert (
+        main(["simulate", scenario, "--out", str(tmp_path / "x.mcap"), "--config", str(config)])
+        == 2
+    )
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"config {config}: " in err and message in err, err
+    assert [p.name for p in tmp_path.iterdir()] == ["large.toml"]
+
+
+# Runs `mmslam` and prints its peak resident memory (KiB) after its own output.
+PEAK_MEMORY = """
+import resource, sys
+from pipeline.cli import main
+status = main(sys.argv[1:])
+print(status, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+"""
+
+
+@pytest.mark.slow
+def test_a_dense_world_is_made_in_bounded_memory(tmp_path):
+    """20,000 tags along 1,500 keyframes: the visibility arrays of every keyframe against every
+    tag took 3.6 GB at the peak (the issue: 100,000 tags, 6 GB, then out of memory); tags out
+    of reach are not tested now, and the rest a block at a time."""
+    config = tmp_path / "dense.toml"
+    config.write_text("[tags]\ncount = 20000\nmin_spacing_m = 0.0\n[camera]\nmax_range_m = 1.3\n")
+    args = [
+        "simulate",
+        "indoor-tags",
+        "--out",
+        str(tmp_path / "dense.mcap"),
+        "--config",
+        str(config),
+    ]
+    done = subprocess.run(
+        [sys.executable, "-c", PEAK_MEMORY, *args], cwd=ROOT, capture_output=True, text=True
+    )
+    summary, result = done.stdout.splitlines()
+    status, peak_kib = (int(v) for v in result.split())
+    assert status == 0 and "1501 poses" in summary and "detections (0 false) of" in summary
+    assert int(re.search(r"(\d+) detections", summary)[1]) > 1000
+    assert peak_kib < 400 * 1024, f"peak {peak_kib / 1024:.0f} MiB"

@@ -3,7 +3,9 @@ issue found, and every key of configs/ declaring a range its file documents."""
 
 from __future__ import annotations
 
+import os
 import re
+import threading
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -18,6 +20,7 @@ from data_tools.scenarios.kitti05_cars import Kitti05CarsConfig
 from data_tools.scenarios.planar_park import PlanarParkConfig
 from data_tools.sweep.config import FACTOR_RANGES, NUM_CLASSES, SEED_COUNT
 from pipeline import settings
+from pipeline.cli import main
 from pipeline.config import Config, load_config
 from pipeline.errors import InputError
 from pipeline.frontend.config import FrontendConfig
@@ -222,3 +225,89 @@ def test_sweep_files_document_their_ranges(path):
             expected = settings.describe(valid) if valid else None
             assert (doc.group(1) if doc else None) == expected, line
     assert docs
+
+
+def _deep_arrays(path: Path) -> Path:
+    path.write_text("a = " + "[" * 500 + "]" * 500 + "\n")
+    return path
+
+
+def _deep_tables(path: Path) -> Path:
+    path.write_text("a = " + "{b = " * 500 + "1" + "}" * 500 + "\n")
+    return path
+
+
+def _dotted(path: Path) -> Path:
+    path.write_text("a" + ".b" * 2000 + " = 1\n")
+    return path
+
+
+def _long_key(path: Path) -> Path:
+    path.write_text("k" * 100_000 + " = 1\n")
+    return path
+
+
+def _sparse(path: Path) -> Path:
+    with open(path, "wb") as f:
+        f.truncate(2 * 2**30)  # 2 GB that take no disk
+    return path
+
+
+def _endless_pipe(path: Path) -> Path:
+    """A FIFO a thread fills for as long as someone reads it."""
+    os.mkfifo(path)
+
+    def fill() -> None:
+        try:
+            with open(path, "wb") as f:
+                while True:
+                    f.write(b"#" * 65536)
+        except OSError:  # the reader has gone
+            pass
+
+    threading.Thread(target=fill, daemon=True).start()
+    return path
+
+
+HOSTILE_CONFIGS = {
+    "500 nested arrays": (_deep_arrays, "arrays or tables nested deeper than 32 levels"),
+    "500 nested inline tables": (_deep_tables, "arrays or tables nested deeper than 32 levels"),
+    "a key of 2000 dotted parts": (_dotted, "tables nested deeper than 32 levels"),
+    "a key of 100,000 characters": (_long_key, "a key of 100000 characters ('kkkk"),
+    "/dev/zero": (lambda path: Path("/dev/zero"), "larger than 1 MiB; not a config file"),
+    "a 2 GB file": (_sparse, "larger than 1 MiB; not a config file"),
+    "an endless FIFO": (_endless_pipe, "larger than 1 MiB; not a config file"),
+}
+# Every command that reads a config file, with the file at CONFIG.
+CONFIG_READERS = {
+    "replay": ["replay", "absent.mcap", "--method", "ml", "--out", "out", "--config", "CONFIG"],
+    "compare": ["compare", "absent.mcap", "--out", "out", "--config", "CONFIG"],
+    "simulate": ["simulate", "city-grid", "--out", "x.mcap", "--config", "CONFIG"],
+    "sweep": ["sweep", "CONFIG", "--out", "out"],
+    "frontend": ["frontend", "absent", "--out", "x.mcap", "--config", "CONFIG"],
+    "convert": ["convert", "absent.txt", "--out", "x.mcap", "--config", "CONFIG"],
+}
+
+
+@pytest.mark.parametrize("reader", sorted(CONFIG_READERS))
+@pytest.mark.parametrize("case", sorted(HOSTILE_CONFIGS))
+def test_every_config_reader_refuses_a_hostile_file_in_one_line(
+    tmp_path, monkeypatch, capsys, reader, case
+):
+    """Issue 53: 500 `[` made every reader a 3,002-line RecursionError, and `--config
+    /dev/zero` was read until memory ran out."""
+    make, needle = HOSTILE_CONFIGS[case]
+    config = make(tmp_path / "hostile.toml")
+    monkeypatch.chdir(tmp_path)
+    args = [str(config) if a == "CONFIG" else a for a in CONFIG_READERS[reader]]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"config {config}: " in err and needle in err, err
+    assert len(err) < 300
+    assert [p.name for p in tmp_path.iterdir() if p != config] == []  # nothing written
+
+
+def test_nesting_does_not_count_brackets_in_strings_or_comments():
+    text = 'a = "[[[[" # [[[[[\nb = """\n{{{{\n"""\nc = \'[[\'\n[t]\nd = [[1], [2]]\n'
+    assert settings.nesting(text) == 2
+    assert max(settings.nesting(p.read_text()) for p in CONFIGS.rglob("*.toml")) <= 3

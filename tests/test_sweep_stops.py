@@ -93,11 +93,12 @@ def test_a_stopped_sweep_takes_its_workers_with_it_and_resumes(tmp_path, how):
     workers = wait_for(lambda: alive(children(sweep.pid)), "the workers")
     sweep.send_signal(how)
     _, err = sweep.communicate(timeout=PATIENCE_S)  # stderr closes once every worker is gone
-    if how == signal.SIGTERM:  # as Ctrl-C: one line, the interrupted status
-        assert sweep.returncode == 130
-        assert err.strip().splitlines()[-1] == "mmslam sweep: interrupted"
+    if how == signal.SIGTERM:  # as Ctrl-C, in one line, with the status a shell gives SIGTERM
+        assert sweep.returncode == 128 + signal.SIGTERM
+        assert err.strip().splitlines() == ["mmslam sweep: terminated"]
     else:
         assert sweep.returncode == -signal.SIGKILL
+        assert "leaked semaphore" not in err and err == "", err  # the resource tracker's
     wait_for(lambda: not alive(workers), "the workers to die")
     kept = finished(out)
     assert 1 <= len(kept) < 9
@@ -144,3 +145,21 @@ def test_a_cached_log_that_changed_is_made_again(tmp_path, caplog):
     assert not cached_log_is_intact(log_path)
     ensure_log(task)
     assert cached_log_is_intact(log_path)
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+def test_a_worker_killed_as_by_the_out_of_memory_killer_ends_the_sweep_in_one_line(tmp_path):
+    """Issue 53: a worker SIGKILLed (as the OOM killer does) gave a 20-line traceback."""
+    sweep, out = start_sweep(tmp_path)
+    workers = wait_for(lambda: alive(children(sweep.pid)), "the workers")
+    spawned = [p for p in workers if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
+    os.kill(spawned[0], signal.SIGKILL)
+    _, err = sweep.communicate(timeout=PATIENCE_S)
+    assert sweep.returncode == 1
+    assert err.splitlines() == [
+        "mmslam sweep: error: a worker process died abruptly (killed, out of memory, or a "
+        "crash); the runs finished so far are kept: run the sweep again to resume"
+    ]
+    wait_for(lambda: not alive(workers), "the other worker and the resource tracker to die")
+    assert 1 <= len(finished(out)) < 9

@@ -85,5 +85,5 @@ def simulate(
     )
     run = module.simulate(config, options, config_path)
     out = Path(out)
-    write_log(out, run, foxglove)
-    return summarise(scenario, out, options, run)
+    counts = write_log(out, run, foxglove)
+    return summarise(scenario, out, options, run, counts)

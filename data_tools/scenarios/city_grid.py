@@ -18,22 +18,28 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
+    blocks,
     floats,
     metadata_for,
+    pieces,
     source_text,
     vehicle_class_names,
+    within_reach,
 )
 from data_tools.scenarios.config import (
+    MAX_LANDMARKS,
     Distance,
     Length,
     NumClasses,
@@ -61,8 +67,6 @@ NAME = "city-grid"
 
 # Points tested along each line of sight against the buildings.
 LINE_OF_SIGHT_SAMPLES = np.linspace(0.05, 0.95, 24)
-# Vehicle-pose pairs examined at once (bounds memory on long routes).
-POSES_PER_CHUNK = 2000
 # Buildings stand this far back from the kerb line of parked vehicles.
 PAVEMENT_M = 2.0
 
@@ -136,7 +140,19 @@ def _check(c: CityGridConfig, path: Path) -> None:
     )
     check_route(c.route, path, req)
     req(len(c.vehicles) >= 1, path, "at least one [[vehicles]] entry")
-    req(p.slot_jitter_m < p.slot_spacing_m / 2, path, "parking.slot_jitter_m too large")
+    slots = parking_slots(g, p)
+    req(
+        slots <= MAX_LANDMARKS,
+        path,
+        f"grid.streets_x, streets_y, block_x_m, block_y_m and parking.slot_spacing_m "
+        f"({p.slot_spacing_m:g} m) make {slots:.3g} parking slots; at most {MAX_LANDMARKS}",
+    )
+    req(
+        p.slot_jitter_m < p.slot_spacing_m / 2,
+        path,
+        f"'parking.slot_jitter_m' ({p.slot_jitter_m:g} m) must be < slot_spacing_m / 2 "
+        f"({p.slot_spacing_m / 2:g} m)",
+    )
     req(s.min_range_m < s.max_range_m, path, "sensor ranges: min_range_m < max_range_m")
 
 
@@ -166,6 +182,17 @@ def buildings_of(xs: tuple[float, ...], ys: tuple[float, ...], half_street: floa
             for y0, y1 in itertools.pairwise(ys)
         ]
     )
+
+
+def parking_slots(grid: GridConfig, parking: ParkingConfig) -> float:
+    """How many parking slots `park_vehicles` lines the streets with (both kerbs)."""
+    per_street = [
+        math.floor((block - 2 * parking.corner_clearance_m) / parking.slot_spacing_m) + 1
+        for block in (grid.block_x_m, grid.block_y_m)
+    ]
+    streets_along_x = grid.streets_y * (grid.streets_x - 1)
+    streets_along_y = grid.streets_x * (grid.streets_y - 1)
+    return 2.0 * (streets_along_x * per_street[0] + streets_along_y * per_street[1])
 
 
 def park_vehicles(
@@ -226,16 +253,17 @@ def inside_any(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
     ).any(axis=-1)
 
 
-def visible_vehicles(
-    world: CityWorld, sensor: SensorConfig, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(pose index, vehicle id, body-frame position) of every vehicle detected: in view and
-    range, not behind a building, and drawn as detected."""
+def vehicles_in_view(
+    world: CityWorld, sensor: SensorConfig
+) -> Iterator[tuple[slice, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """For each block of poses, (pose index, vehicle id, body-frame position) of every vehicle
+    in view and range from them and not behind a building."""
     half_fov = math.radians(sensor.horizontal_fov_deg) / 2
-    found_pose, found_vehicle, found_local = [], [], []
-    for first in range(0, len(world.poses), POSES_PER_CHUNK):
-        poses = world.poses[first : first + POSES_PER_CHUNK]
-        offset = world.vehicles[None] - poses[:, None, :3, 3]  # (n, M, 3)
+    tree = cKDTree(world.vehicles[:, :2])
+    for block in blocks(len(world.poses), len(world.vehicles)):
+        poses = world.poses[block]
+        near = within_reach(tree, poses[:, :3, 3], sensor.max_range_m)
+        offset = world.vehicles[None, near] - poses[:, None, :3, 3]  # (n, m, 3)
         local = np.einsum("nji,nmj->nmi", poses[:, :3, :3], offset)
         distance = np.linalg.norm(local, axis=-1)
         bearing = np.arctan2(local[..., 1], local[..., 0])
@@ -245,25 +273,31 @@ def visible_vehicles(
             & (local[..., 0] > 0)
             & (np.abs(bearing) <= half_fov)
         )
-        pose_index, vehicle = np.nonzero(in_view)
-        start = poses[pose_index, :2, 3]
-        end = world.vehicles[vehicle, :2]
-        samples = start[:, None] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (end - start)[:, None]
-        clear = ~inside_any(samples, world.buildings).any(axis=1)
-        pose_index, vehicle = pose_index[clear], vehicle[clear]
-        found_pose.append(pose_index + first)
-        found_vehicle.append(vehicle)
-        found_local.append(local[pose_index, vehicle])
-    pose_index = np.concatenate(found_pose)
-    vehicle = np.concatenate(found_vehicle)
-    local = np.concatenate(found_local)
-    # Detection probability falls linearly with range.
+        pose_index, k = np.nonzero(in_view)
+        vehicle = near[k]
+        clear = clear_lines(poses[pose_index, :2, 3], world.vehicles[vehicle, :2], world.buildings)
+        pose_index, vehicle, k = pose_index[clear], vehicle[clear], k[clear]
+        yield block, (pose_index + block.start, vehicle, local[pose_index, k])
+
+
+def clear_lines(start: np.ndarray, end: np.ndarray, buildings: np.ndarray) -> np.ndarray:
+    """(n,) whether the (n, 2) lines from `start` to `end` pass no building."""
+    clear = np.empty(len(start), dtype=bool)
+    for rows in blocks(len(start), len(LINE_OF_SIGHT_SAMPLES) * len(buildings)):
+        a, b = start[rows], end[rows]
+        samples = a[:, None] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (b - a)[:, None]
+        clear[rows] = ~inside_any(samples, buildings).any(axis=1)
+    return clear
+
+
+def detected(local: np.ndarray, sensor: SensorConfig, rng: np.random.Generator) -> np.ndarray:
+    """Which vehicles in view (body-frame positions) are detected: the probability falls
+    linearly with range."""
     fraction = (np.linalg.norm(local, axis=1) - sensor.min_range_m) / (
         sensor.max_range_m - sensor.min_range_m
     )
     near, far = sensor.detection_probability_near, sensor.detection_probability_far
-    detected = rng.random(len(vehicle)) < near + (far - near) * fraction
-    return pose_index[detected], vehicle[detected], local[detected]
+    return rng.random(len(local)) < near + (far - near) * fraction
 
 
 def measurement_sigmas(sensor: SensorConfig, ranges: np.ndarray) -> np.ndarray:
@@ -311,36 +345,49 @@ def simulate(
     calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
     odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
 
-    pose_index, vehicle, local = visible_vehicles(world, config.sensor, streams["visibility"])
-    fa_pose, fa_kind, fa_local = false_alarms(len(poses), config, streams["false_positives"])
-    pose_index = np.concatenate([pose_index, fa_pose])
-    truth = np.concatenate([vehicle, np.full(len(fa_pose), -1)])
-    kinds = np.concatenate([world.vehicle_types[vehicle], fa_kind])
-    local = np.concatenate([local, fa_local])
-
-    true_ber = bearing_elevation_range(local)
-    sigmas = measurement_sigmas(config.sensor, true_ber[:, 2])
-    measured = true_ber + sigmas * streams["measurement"].standard_normal(sigmas.shape)
-    measured[:, 2] = np.maximum(measured[:, 2], 0.1)  # a range is positive
-
     confusion = confusion_matrix(num_classes, options.misclassification)
-    reported = sample_reported_classes(streams["classes"], kinds % num_classes, confusion)
 
-    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
-    # Within a keyframe, detections go left to right as in the image (no hint of the truth).
-    for k in np.lexsort((-measured[:, 0], pose_index)):
-        detections[pose_index[k]].append(
-            Detection(
-                class_id=int(reported[k]),
-                score=1.0,
-                bearing=float(measured[k, 0]),
-                elevation=float(measured[k, 1]),
-                range=float(measured[k, 2]),
-                covariance=floats(np.diag(sigmas[k] ** 2)),
-                source="bbox",
-                truth_landmark_id=int(truth[k]),
+    def detections() -> Iterator[list[Detection]]:
+        """Each pose's detections, made a piece of the run at a time."""
+        seen = vehicles_in_view(world, config.sensor)
+        for piece, (pose_index, vehicle, local) in pieces(
+            seen, config.sensor.false_alarms_per_frame
+        ):
+            found = detected(local, config.sensor, streams["visibility"])
+            pose_index, vehicle, local = pose_index[found], vehicle[found], local[found]
+            fa_pose, fa_kind, fa_local = false_alarms(
+                piece.stop - piece.start, config, streams["false_positives"]
             )
-        )
+            pose_index = np.concatenate([pose_index, fa_pose + piece.start])
+            truth = np.concatenate([vehicle, np.full(len(fa_pose), -1)])
+            kinds = np.concatenate([world.vehicle_types[vehicle], fa_kind])
+            local = np.concatenate([local, fa_local])
+
+            true_ber = bearing_elevation_range(local)
+            sigmas = measurement_sigmas(config.sensor, true_ber[:, 2])
+            measured = true_ber + sigmas * streams["measurement"].standard_normal(sigmas.shape)
+            measured[:, 2] = np.maximum(measured[:, 2], 0.1)  # a range is positive
+
+            reported = sample_reported_classes(streams["classes"], kinds % num_classes, confusion)
+
+            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
+            # Within a keyframe, detections go left to right as in the image (no hint of the
+            # truth).
+            for k in np.lexsort((-measured[:, 0], pose_index)):
+                frames[pose_index[k] - piece.start].append(
+                    Detection(
+                        class_id=int(reported[k]),
+                        score=1.0,
+                        bearing=float(measured[k, 0]),
+                        elevation=float(measured[k, 1]),
+                        range=float(measured[k, 2]),
+                        covariance=floats(np.diag(sigmas[k] ** 2)),
+                        source="bbox",
+                        truth_landmark_id=int(truth[k]),
+                    )
+                )
+            yield from frames
+
     landmarks = [
         GroundTruthLandmark(
             id=m,
@@ -355,7 +402,7 @@ def simulate(
         poses=poses,
         odometry=odometry,
         odometry_covariance=true if options.true_covariance else calibrated,
-        detections=detections,
+        detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(
             num_classes, confusion, names, source_text(NAME, options, config_path)

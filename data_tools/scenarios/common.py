@@ -1,13 +1,22 @@
-"""What every scenario shares: the run options, the simulated run, and writing it as a log."""
+"""What every scenario shares: the run options, the simulated run, and writing it as a log.
+
+A run's memory is bounded whatever its length: landmark-keyframe pairs are tested for
+visibility in blocks (`blocks`), and the detections are made piece by piece as the log is
+written (`pieces`), a piece being consecutive keyframes whose candidate detections number at
+most `DETECTIONS_PER_PIECE`. A piece's random draws are made in one go, in the order a whole
+run's would be, so a run of one piece (every shipped configuration) draws as it always has.
+"""
 
 from __future__ import annotations
 
+import itertools
 import logging
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from data_tools.scenarios.geometry import path_length, quaternion_from_rotation
 from pipeline.log import (
@@ -36,32 +45,89 @@ class SimulationOptions:
     true_covariance: bool
 
 
+# Array elements (landmark-keyframe pairs, line-of-sight samples against walls) computed at once.
+ELEMENTS_PER_BLOCK = 2**20
+# Candidate detections (and false alarms expected) made and held at once.
+DETECTIONS_PER_PIECE = 100_000
+
+
+def blocks(rows: int, elements_per_row: int) -> Iterator[slice]:
+    """Consecutive slices of `rows` rows of `elements_per_row` elements each, at most
+    `ELEMENTS_PER_BLOCK` elements a slice (one row at least)."""
+    step = max(1, ELEMENTS_PER_BLOCK // max(elements_per_row, 1))
+    for first in range(0, rows, step):
+        yield slice(first, min(first + step, rows))
+
+
+def within_reach(landmarks: cKDTree, positions: np.ndarray, reach: float) -> np.ndarray:
+    """Sorted indices of the landmarks (a tree of their x, y) within `reach` (a little more)
+    of any of the (n, 3) `positions` in x, y: those a sensor of that range there may see,
+    whatever the heights. The rest need not be tested."""
+    found = landmarks.query_ball_point(positions[:, :2], reach * (1 + 1e-9) + 1e-9)
+    return np.unique(np.fromiter(itertools.chain.from_iterable(found), dtype=np.intp))
+
+
+Candidates = tuple[np.ndarray, ...]  # arrays of one row a candidate; the first, its pose index
+
+
+def _joined(parts: list[Candidates]) -> Candidates:
+    return tuple(np.concatenate(columns) for columns in zip(*parts, strict=True))
+
+
+def pieces(
+    chunks: Iterable[tuple[slice, Candidates]], extra_per_pose: float = 0.0
+) -> Iterator[tuple[slice, Candidates]]:
+    """Regroup the candidates of consecutive keyframe blocks (`chunks`: the poses of a block
+    and its candidates, ordered by pose) into pieces of consecutive keyframes, each holding at
+    most `DETECTIONS_PER_PIECE` candidates and expected false alarms (`extra_per_pose` each)
+    unless one keyframe alone holds more. The pieces do not depend on the blocks."""
+    held: list[Candidates] = []
+    start, cost, end = 0, 0.0, 0
+    for poses, candidates in chunks:
+        counts = np.bincount(candidates[0] - poses.start, minlength=poses.stop - poses.start)
+        for pose, count in enumerate(counts.tolist(), start=poses.start):
+            if cost > 0 and cost + count + extra_per_pose > DETECTIONS_PER_PIECE:
+                cut = int(np.searchsorted(candidates[0], pose))
+                yield slice(start, pose), _joined([*held, tuple(a[:cut] for a in candidates)])
+                candidates = tuple(a[cut:] for a in candidates)
+                held, start, cost = [], pose, 0.0
+            cost += count + extra_per_pose
+        held.append(candidates)
+        end = poses.stop
+    if held:
+        yield slice(start, end), _joined(held)
+
+
 @dataclass
 class SimulatedRun:
-    """A whole simulated run, ready to be written: truth, odometry and detections."""
+    """A simulated run, ready to be written: truth, odometry, and the detections of each pose
+    in order (made piece by piece as they are read, once)."""
 
     times_ns: np.ndarray  # (N,) int
     poses: np.ndarray  # (N, 4, 4) true body poses, pose 0 at identity
     odometry: np.ndarray  # (N-1, 4, 4) measured motion of pose k+1 in the frame of pose k
     odometry_covariance: np.ndarray  # (6, 6), as written to the log
-    detections: list[list[Detection]]  # per pose
+    detections: Iterable[list[Detection]]  # per pose
     landmarks: list[GroundTruthLandmark]
     metadata: LogMetadata
     calibration: StereoCalibration | None = None
 
-    @property
-    def num_detections(self) -> int:
-        return sum(len(d) for d in self.detections)
 
-    @property
-    def num_false_positives(self) -> int:
-        return sum(1 for frame in self.detections for d in frame if d.truth_landmark_id == -1)
+@dataclass
+class DetectionCounts:
+    """What a run's detections held, counted as they were written."""
 
-    @property
-    def num_landmarks_seen(self) -> int:
-        seen = {d.truth_landmark_id for frame in self.detections for d in frame}
-        seen.discard(-1)
-        return len(seen)
+    detections: int = 0
+    false_positives: int = 0
+    landmarks_seen: set[int] = field(default_factory=set)
+
+    def add(self, frame: Sequence[Detection]) -> None:
+        self.detections += len(frame)
+        for detection in frame:
+            if detection.truth_landmark_id == -1:
+                self.false_positives += 1
+            else:
+                self.landmarks_seen.add(detection.truth_landmark_id)
 
 
 @dataclass(frozen=True)
@@ -131,8 +197,9 @@ def source_text(scenario: str, options: SimulationOptions, config: Path | None) 
     return text
 
 
-def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> None:
-    """Write `run` as a contract-v1 log, messages in time order.
+def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> DetectionCounts:
+    """Write `run` as a contract-v1 log, messages in time order; return what its detections
+    held.
 
     At the first stamp: ground-truth landmarks (and calibration); then for every pose k, at its
     stamp: the odometry that reaches it (k-1 to k), its ground-truth pose, its detections. A
@@ -143,11 +210,13 @@ def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> None:
     odom_quaternions = quaternion_from_rotation(run.odometry[:, :3, :3])
     covariance = floats(run.odometry_covariance)
     stamps = [int(t) for t in run.times_ns]
+    counts = DetectionCounts()
+    frames = iter(run.detections)
     with LogWriter(path, run.metadata, foxglove=foxglove) as writer:
         writer.write(GroundTruthLandmarks(stamp_ns=stamps[0], landmarks=tuple(run.landmarks)))
         if run.calibration is not None:
             writer.write(run.calibration)
-        for k in range(n):
+        for k, frame in zip(range(n), frames, strict=True):
             if k > 0:
                 writer.write(
                     Odometry(
@@ -167,24 +236,28 @@ def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> None:
                     rotation=floats(quaternions[k]),  # type: ignore[arg-type]
                 )
             )
-            writer.write(
-                Detections(stamp_ns=stamps[k], pose_index=k, detections=tuple(run.detections[k]))
-            )
-    logger.info("wrote %s: %d poses, %d detections", path, n, run.num_detections)
+            writer.write(Detections(stamp_ns=stamps[k], pose_index=k, detections=tuple(frame)))
+            counts.add(frame)
+    logger.info("wrote %s: %d poses, %d detections", path, n, counts.detections)
+    return counts
 
 
 def summarise(
-    scenario: str, out: Path, options: SimulationOptions, run: SimulatedRun
+    scenario: str,
+    out: Path,
+    options: SimulationOptions,
+    run: SimulatedRun,
+    counts: DetectionCounts,
 ) -> SimulationSummary:
     return SimulationSummary(
         scenario=scenario,
         out=out,
         seed=options.seed,
         num_poses=len(run.poses),
-        num_detections=run.num_detections,
-        num_false_positives=run.num_false_positives,
+        num_detections=counts.detections,
+        num_false_positives=counts.false_positives,
         num_landmarks=len(run.landmarks),
-        num_landmarks_seen=run.num_landmarks_seen,
+        num_landmarks_seen=len(counts.landmarks_seen),
         num_classes=options.num_classes,
         path_length_m=path_length(run.poses[:, :3, 3]),
         duration_s=float(run.times_ns[-1] - run.times_ns[0]) * 1e-9,

@@ -24,9 +24,13 @@ Sigma = Annotated[float, positive(100.0)]  # a standard deviation, m or rad
 Spread = Annotated[float, within(0.0, 100.0)]  # a standard deviation that may be 0
 Probability = Annotated[float, UNIT]
 PerFrame = Annotated[float, within(0.0, 1000.0)]  # a mean count of each frame
-Count = Annotated[int, within(1, 10**5)]
+# Landmarks in a world at the most (tags, parked vehicles, trees): the ground truth of a log is
+# one message, and every keyframe is tested against every landmark.
+MAX_LANDMARKS = 10**5
+Count = Annotated[int, within(1, MAX_LANDMARKS)]
 
 __all__ = [
+    "MAX_LANDMARKS",
     "MAX_NOISE_SCALE",
     "Coordinate",
     "Count",

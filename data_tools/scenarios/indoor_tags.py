@@ -16,19 +16,24 @@ from __future__ import annotations
 import itertools
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
+    blocks,
     floats,
     metadata_for,
+    pieces,
     source_text,
+    within_reach,
 )
 from data_tools.scenarios.config import (
     Coordinate,
@@ -67,6 +72,10 @@ NAME = "indoor-tags"
 
 # Points tested along each line of sight, stopping short of the tag on the wall itself.
 LINE_OF_SIGHT_SAMPLES = np.linspace(0.0, 0.97, 48)
+# A floor's junctions at the most (a line of sight is tested against every corridor), and the
+# route's turns at them.
+MAX_JUNCTIONS = 2500
+MAX_TURNS = 10**6
 
 
 @dataclass(frozen=True)
@@ -124,17 +133,33 @@ def load_config(path: Path | None = None) -> IndoorTagsConfig:
 def _check(c: IndoorTagsConfig, path: Path) -> None:
     """What the keys' own ranges cannot say."""
     req = cfg.require
-    for axis in (c.floor.corridor_x_m, c.floor.corridor_y_m):
-        req(len(axis) >= 2, path, "floor needs at least two corridors each way")
-        req(bool(np.all(np.diff(axis) > 0)), path, "floor corridors must be in increasing order")
+    f = c.floor
+    width = f.corridor_width_m + 2 * c.tags.junction_clearance_m
+    for key, axis in (("corridor_x_m", f.corridor_x_m), ("corridor_y_m", f.corridor_y_m)):
+        req(len(axis) >= 2, path, f"'floor.{key}' needs at least two corridors")
+        req(bool(np.all(np.diff(axis) > 0)), path, f"'floor.{key}' must be in increasing order")
         req(
-            bool(
-                np.all(np.diff(axis) > c.floor.corridor_width_m + 2 * c.tags.junction_clearance_m)
-            ),
+            bool(np.all(np.diff(axis) > width)),
             path,
-            "floor corridors are closer than their width",
+            f"'floor.{key}': corridors closer than floor.corridor_width_m + 2 "
+            f"tags.junction_clearance_m ({width:g} m)",
         )
+    junctions = len(f.corridor_x_m) * len(f.corridor_y_m)
+    req(
+        junctions <= MAX_JUNCTIONS,
+        path,
+        f"floor.corridor_x_m x corridor_y_m make {junctions} junctions; at most {MAX_JUNCTIONS}",
+    )
     check_route(c.route, path, req)
+    # The route turns at junctions: each turn is a corridor long at least.
+    gap = min(np.diff(f.corridor_x_m).min(), np.diff(f.corridor_y_m).min())
+    turns = (1.1 * c.route.length_m + 50.0) / gap
+    req(
+        turns <= MAX_TURNS,
+        path,
+        f"route.length_m ({c.route.length_m:g} m) between floor corridors {gap:g} m apart makes "
+        f"{turns:.3g} turns; at most {MAX_TURNS}",
+    )
     req(
         c.route.wander_amplitude_m < c.floor.corridor_width_m / 2,
         path,
@@ -263,28 +288,43 @@ def in_free_space(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
     return inside.any(axis=-1)
 
 
-def visible_tags(world: IndoorWorld, camera: TagCameraConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(pose index, tag id) of every tag in view: range, field of view, facing, no wall between."""
+def clear_lines(start: np.ndarray, end: np.ndarray, free_space: np.ndarray) -> np.ndarray:
+    """(n,) whether the (n, 2) lines from `start` to `end` stay on the floor (no wall between)."""
+    clear = np.empty(len(start), dtype=bool)
+    for rows in blocks(len(start), len(LINE_OF_SIGHT_SAMPLES) * len(free_space)):
+        a, b = start[rows], end[rows]
+        samples = a[:, None, :] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (b - a)[:, None, :]
+        clear[rows] = in_free_space(samples, free_space).all(axis=1)
+    return clear
+
+
+def visible_tags(
+    world: IndoorWorld, camera: TagCameraConfig
+) -> Iterator[tuple[slice, tuple[np.ndarray, np.ndarray]]]:
+    """For each block of poses, (pose index, tag id) of every tag in view from them: range,
+    field of view, facing, no wall between."""
     positions = world.poses[:, :3, 3]
     tags = world.tag_poses[:, :3, 3]
     normals = world.tag_poses[:, :3, 0]
-    offset = tags[None, :, :] - positions[:, None, :]  # (N, M, 3), world frame
-    distance = np.linalg.norm(offset, axis=-1)
-    local = np.einsum("nji,nmj->nmi", world.poses[:, :3, :3], offset)  # body frame
-    ber = bearing_elevation_range(local)
-    facing = -np.einsum("nmi,mi->nm", offset, normals) / np.maximum(distance, 1e-9)
-    mask = (
-        (distance <= camera.max_range_m)
-        & (local[..., 0] > 0.0)
-        & (np.abs(ber[..., 0]) <= math.radians(camera.horizontal_fov_deg) / 2)
-        & (np.abs(ber[..., 1]) <= math.radians(camera.vertical_fov_deg) / 2)
-        & (facing >= math.cos(math.radians(camera.max_incidence_deg)))
-    )
-    pose_index, tag_id = np.nonzero(mask)
-    start, end = positions[pose_index, :2], tags[tag_id, :2]
-    samples = start[:, None, :] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (end - start)[:, None, :]
-    clear = in_free_space(samples, world.free_space).all(axis=1)
-    return pose_index[clear], tag_id[clear]
+    tree = cKDTree(tags[:, :2])
+    for poses in blocks(len(positions), len(tags)):
+        near = within_reach(tree, positions[poses], camera.max_range_m)
+        offset = tags[None, near, :] - positions[poses, None, :]  # (n, m, 3), world frame
+        distance = np.linalg.norm(offset, axis=-1)
+        local = np.einsum("nji,nmj->nmi", world.poses[poses, :3, :3], offset)  # body frame
+        ber = bearing_elevation_range(local)
+        facing = -np.einsum("nmi,mi->nm", offset, normals[near]) / np.maximum(distance, 1e-9)
+        mask = (
+            (distance <= camera.max_range_m)
+            & (local[..., 0] > 0.0)
+            & (np.abs(ber[..., 0]) <= math.radians(camera.horizontal_fov_deg) / 2)
+            & (np.abs(ber[..., 1]) <= math.radians(camera.vertical_fov_deg) / 2)
+            & (facing >= math.cos(math.radians(camera.max_incidence_deg)))
+        )
+        pose_index, k = np.nonzero(mask)
+        pose_index, tag_id = pose_index + poses.start, near[k]
+        clear = clear_lines(positions[pose_index, :2], tags[tag_id, :2], world.free_space)
+        yield poses, (pose_index[clear], tag_id[clear])
 
 
 # --- the run --------------------------------------------------------------------------------
@@ -307,50 +347,56 @@ def simulate(
 
     calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
     odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
-
-    pose_index, tag_id = visible_tags(world, config.camera)
-    detected = streams["visibility"].random(len(pose_index)) < config.camera.detection_probability
-    pose_index, tag_id = pose_index[detected], tag_id[detected]
-
-    m = config.measurement
-    relative = inverse(poses[pose_index]) @ tag_poses[tag_id]  # true tag poses in body frames
-    point_sigmas = np.array([m.sigma_bearing_rad, m.sigma_elevation_rad, m.sigma_range_m])
-    pose_sigmas = np.array(
-        [m.relative_pose_sigma_rotation_rad] * 3 + [m.relative_pose_sigma_translation_m] * 3
-    )
-    rng = streams["measurement"]
-    point_noise = rng.standard_normal((len(tag_id), 3)) * point_sigmas
-    pose_noise = rng.standard_normal((len(tag_id), 6)) * pose_sigmas
-    measured = bearing_elevation_range(relative[:, :3, 3]) + point_noise
-    measured_pose = relative @ se3_exp(pose_noise)
-    measured_quaternion = quaternion_from_rotation(measured_pose[:, :3, :3])
-
-    true_class = tag_id % num_classes
     confusion = confusion_matrix(num_classes, options.misclassification)
-    reported = sample_reported_classes(streams["classes"], true_class, confusion)
 
-    point_covariance = floats(np.diag(point_sigmas**2))
-    pose_covariance = floats(np.diag(pose_sigmas**2))
-    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
-    # Within a keyframe, detections go left to right as in the image (no hint of the truth).
-    for d in np.lexsort((-measured[:, 0], pose_index)):
-        detections[pose_index[d]].append(
-            Detection(
-                class_id=int(reported[d]),
-                score=1.0,
-                bearing=float(measured[d, 0]),
-                elevation=float(measured[d, 1]),
-                range=float(measured[d, 2]),
-                covariance=point_covariance,
-                source="apriltag",
-                relative_pose=RelativePose(
-                    translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
-                    rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
-                    covariance=pose_covariance,
-                ),
-                truth_landmark_id=int(tag_id[d]),
-            )
+    def detections() -> Iterator[list[Detection]]:
+        """Each pose's detections, made a piece of the run at a time."""
+        m = config.measurement
+        point_sigmas = np.array([m.sigma_bearing_rad, m.sigma_elevation_rad, m.sigma_range_m])
+        pose_sigmas = np.array(
+            [m.relative_pose_sigma_rotation_rad] * 3 + [m.relative_pose_sigma_translation_m] * 3
         )
+        point_covariance = floats(np.diag(point_sigmas**2))
+        pose_covariance = floats(np.diag(pose_sigmas**2))
+        for piece, (pose_index, tag_id) in pieces(visible_tags(world, config.camera)):
+            seen = streams["visibility"].random(len(pose_index))
+            detected = seen < config.camera.detection_probability
+            pose_index, tag_id = pose_index[detected], tag_id[detected]
+
+            relative = inverse(poses[pose_index]) @ tag_poses[tag_id]  # true, in body frames
+            rng = streams["measurement"]
+            point_noise = rng.standard_normal((len(tag_id), 3)) * point_sigmas
+            pose_noise = rng.standard_normal((len(tag_id), 6)) * pose_sigmas
+            measured = bearing_elevation_range(relative[:, :3, 3]) + point_noise
+            measured_pose = relative @ se3_exp(pose_noise)
+            measured_quaternion = quaternion_from_rotation(measured_pose[:, :3, :3])
+
+            true_class = tag_id % num_classes
+            reported = sample_reported_classes(streams["classes"], true_class, confusion)
+
+            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
+            # Within a keyframe, detections go left to right as in the image (no hint of the
+            # truth).
+            for d in np.lexsort((-measured[:, 0], pose_index)):
+                frames[pose_index[d] - piece.start].append(
+                    Detection(
+                        class_id=int(reported[d]),
+                        score=1.0,
+                        bearing=float(measured[d, 0]),
+                        elevation=float(measured[d, 1]),
+                        range=float(measured[d, 2]),
+                        covariance=point_covariance,
+                        source="apriltag",
+                        relative_pose=RelativePose(
+                            translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
+                            rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
+                            covariance=pose_covariance,
+                        ),
+                        truth_landmark_id=int(tag_id[d]),
+                    )
+                )
+            yield from frames
+
     landmarks = [
         GroundTruthLandmark(
             id=k,
@@ -364,7 +410,7 @@ def simulate(
         poses=poses,
         odometry=odometry,
         odometry_covariance=true if options.true_covariance else calibrated,
-        detections=detections,
+        detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(
             num_classes,

@@ -15,6 +15,7 @@ was drawn from, evaluated at the true geometry. Occlusion between cars is not mo
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -27,12 +28,15 @@ from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
+    blocks,
     floats,
     metadata_for,
+    pieces,
     source_text,
     vehicle_class_names,
 )
 from data_tools.scenarios.config import (
+    MAX_LANDMARKS,
     Distance,
     Length,
     PerFrame,
@@ -54,6 +58,7 @@ from data_tools.scenarios.noise import (
     random_streams,
     sample_reported_classes,
 )
+from data_tools.scenarios.routes import MAX_KEYFRAMES
 from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.datasets.kitti import (
     camera_poses_to_body,
@@ -76,6 +81,13 @@ _NEAR_PLANE_M = 0.1  # box corners closer than this to the image plane are not p
 
 
 Logit = Annotated[float, within(-100.0, 100.0)]
+# What the parking keys may make of the sequence's path at the most: street samples, and pairs
+# of samples (or of cars) within the distances the keys give, which are compared in memory.
+MAX_STREET_SAMPLES = 10**6
+MAX_NEAR_PAIRS = 10**7
+# A line of a KITTI poses file at the most (12 numbers): a file longer than MAX_KEYFRAMES of
+# them is refused before it is read.
+MAX_POSE_LINE_BYTES = 400
 
 
 @dataclass(frozen=True)
@@ -185,6 +197,14 @@ def sequence_dir(sequence: SequenceConfig) -> Path:
 def read_sequence(sequence: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
     """Times (ns) and body poses of the KITTI sequence (poses.txt, times.txt)."""
     folder = sequence_dir(sequence)
+    try:
+        size = (folder / "poses.txt").stat().st_size
+    except OSError:
+        size = 0  # read_poses says what is wrong
+    if size > MAX_KEYFRAMES * MAX_POSE_LINE_BYTES:
+        raise InputError(
+            f"sequence {folder}: poses.txt of {size} bytes holds more than {MAX_KEYFRAMES} poses"
+        )
     camera_poses = read_poses(folder / "poses.txt")
     times = read_times(folder / "times.txt")
     if len(times) != len(camera_poses):
@@ -283,8 +303,51 @@ def _spread_out(points: np.ndarray, distance: float) -> np.ndarray:
     return keep
 
 
-def build_world(config: Kitti05CarsConfig) -> Kitti05World:
+def check_world_size(config: Kitti05CarsConfig, positions: np.ndarray, path: Path | str) -> None:
+    """What the keys' ranges cannot say until the sequence is read: the keyframes, and what
+    the parking keys make of its path (street samples, their revisit pairs, cars and their
+    neighbours), refused before any of it is made."""
+    req, p = cfg.require, config.parking
+    req(
+        len(positions) <= MAX_KEYFRAMES,
+        path,
+        f"sequence.data_dir holds {len(positions)} poses; at most {MAX_KEYFRAMES}",
+    )
+    length = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
+    samples = length / p.path_step_m
+    req(
+        samples <= MAX_STREET_SAMPLES,
+        path,
+        f"parking.path_step_m ({p.path_step_m:g} m) cuts the {length:.0f} m path into "
+        f"{samples:.3g} samples; at most {MAX_STREET_SAMPLES}",
+    )
+    pairs = samples * p.revisit_radius_m / p.path_step_m
+    req(
+        pairs <= MAX_NEAR_PAIRS,
+        path,
+        f"parking.revisit_radius_m / path_step_m ({p.revisit_radius_m:g} / {p.path_step_m:g}) "
+        f"over {samples:.3g} samples makes {pairs:.3g} pairs to compare; at most {MAX_NEAR_PAIRS}",
+    )
+    spacing = min(v.length_m for v in config.vehicles) + p.gap_min_m
+    cars = 2 * length / spacing
+    req(
+        cars <= MAX_LANDMARKS,
+        path,
+        f"[[vehicles]] length_m and parking.gap_min_m (a car every {spacing:g} m at the closest) "
+        f"could park {cars:.3g} cars along the {length:.0f} m path; at most {MAX_LANDMARKS}",
+    )
+    pairs = cars * (2 * p.min_separation_m / spacing + 1)
+    req(
+        pairs <= MAX_NEAR_PAIRS,
+        path,
+        f"parking.min_separation_m ({p.min_separation_m:g} m) over cars {spacing:g} m apart "
+        f"makes {pairs:.3g} pairs to compare; at most {MAX_NEAR_PAIRS}",
+    )
+
+
+def build_world(config: Kitti05CarsConfig, path: Path | str) -> Kitti05World:
     times_ns, poses = read_sequence(config.sequence)
+    check_world_size(config, poses[:, :3, 3], path)
     street = street_of(poses[:, :3, 3], config.parking)
     rng = np.random.default_rng(config.world_seed)
     car_poses, car_types, car_sizes = park_cars(
@@ -387,26 +450,45 @@ class DetectionBatch:
     score: np.ndarray
 
 
+def cars_in_view(
+    world: Kitti05World, camera: StereoIntrinsics, d: DetectorConfig
+) -> Iterator[tuple[slice, tuple[np.ndarray, ...]]]:
+    """For each block of poses, (pose index, car, body-frame centre, pixel, depth, distance)
+    of every car whose centre is in view and range from them."""
+    centres = world.car_poses[:, :3, 3]
+    for poses in blocks(len(world.poses), len(centres)):
+        rotations, origins = world.poses[poses, :3, :3], world.poses[poses, :3, 3]
+        local = np.einsum("nji,nmj->nmi", rotations, centres[None] - origins[:, None])  # (n, M, 3)
+        pixels, depth = project(local, camera)
+        distance = np.linalg.norm(local, axis=-1)
+        candidate = (
+            (depth >= d.min_depth_m) & (distance <= d.max_range_m) & in_image(pixels, camera)
+        )
+        pose_index, car = np.nonzero(candidate)
+        yield (
+            poses,
+            (
+                pose_index + poses.start,
+                car,
+                local[pose_index, car],
+                pixels[pose_index, car],
+                depth[pose_index, car],
+                distance[pose_index, car],
+            ),
+        )
+
+
 def detect_cars(
     world: Kitti05World,
     camera: StereoIntrinsics,
     d: DetectorConfig,
     streams: dict[str, np.random.Generator],
+    candidates: tuple[np.ndarray, ...],
 ) -> DetectionBatch:
-    """Cars in view and range that the detector scores above its threshold, with noise."""
+    """The cars in view (`candidates`, from `cars_in_view`) that the detector scores above its
+    threshold, with noise."""
     rotations, origins = world.poses[:, :3, :3], world.poses[:, :3, 3]
-    centres = world.car_poses[:, :3, 3]
-    local = np.einsum("nji,nmj->nmi", rotations, centres[None] - origins[:, None])  # (N, M, 3)
-    pixels, depth = project(local, camera)
-    distance = np.linalg.norm(local, axis=-1)
-    candidate = (depth >= d.min_depth_m) & (distance <= d.max_range_m) & in_image(pixels, camera)
-    pose_index, car = np.nonzero(candidate)
-    local, pixels, depth, distance = (
-        local[pose_index, car],
-        pixels[pose_index, car],
-        depth[pose_index, car],
-        distance[pose_index, car],
-    )
+    pose_index, car, local, pixels, depth, distance = candidates
     # Confidence falls with range; below the threshold the car is missed.
     mean = d.score_logit_near + (d.score_logit_far - d.score_logit_near) * distance / d.max_range_m
     score = logistic(mean + d.score_logit_sigma * streams["visibility"].standard_normal(len(car)))
@@ -476,36 +558,47 @@ def _concatenate(a: DetectionBatch, b: DetectionBatch) -> DetectionBatch:
 def simulate(
     config: Kitti05CarsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
-    world = build_world(config)
+    world = build_world(config, config_path or cfg.default_config_path(NAME))
     streams = random_streams(options.seed)
     num_classes = options.num_classes
 
     calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
     odometry = corrupt_odometry(streams["odometry"], relative_poses(world.poses), true)
 
-    batch = _concatenate(
-        detect_cars(world, config.camera, config.detector, streams),
-        false_alarms(len(world.poses), config, streams["false_positives"]),
-    )
     confusion = confusion_matrix(num_classes, options.misclassification)
-    reported = sample_reported_classes(streams["classes"], batch.kind % num_classes, confusion)
 
-    detections: list[list[Detection]] = [[] for _ in range(len(world.poses))]
-    # Within a frame, detections go left to right as in the image (no hint of the truth).
-    for k in np.lexsort((-batch.measured[:, 0], batch.pose_index)):
-        detections[batch.pose_index[k]].append(
-            Detection(
-                class_id=int(reported[k]),
-                score=float(batch.score[k]),
-                bearing=float(batch.measured[k, 0]),
-                elevation=float(batch.measured[k, 1]),
-                range=float(batch.measured[k, 2]),
-                covariance=floats(batch.covariance[k]),
-                source="bbox",
-                bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
-                truth_landmark_id=int(batch.truth[k]),
+    def detections() -> Iterator[list[Detection]]:
+        """Each pose's detections, made a piece of the run at a time."""
+        d = config.detector
+        in_view = cars_in_view(world, config.camera, d)
+        for piece, candidates in pieces(in_view, d.false_alarms_per_frame):
+            phantoms = false_alarms(piece.stop - piece.start, config, streams["false_positives"])
+            phantoms.pose_index += piece.start
+            batch = _concatenate(
+                detect_cars(world, config.camera, d, streams, candidates), phantoms
             )
-        )
+            kinds = batch.kind % num_classes
+            reported = sample_reported_classes(streams["classes"], kinds, confusion)
+
+            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
+            # Within a frame, detections go left to right as in the image (no hint of the
+            # truth).
+            for k in np.lexsort((-batch.measured[:, 0], batch.pose_index)):
+                frames[batch.pose_index[k] - piece.start].append(
+                    Detection(
+                        class_id=int(reported[k]),
+                        score=float(batch.score[k]),
+                        bearing=float(batch.measured[k, 0]),
+                        elevation=float(batch.measured[k, 1]),
+                        range=float(batch.measured[k, 2]),
+                        covariance=floats(batch.covariance[k]),
+                        source="bbox",
+                        bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
+                        truth_landmark_id=int(batch.truth[k]),
+                    )
+                )
+            yield from frames
+
     landmarks = [
         GroundTruthLandmark(
             id=m,
@@ -520,7 +613,7 @@ def simulate(
         poses=world.poses,
         odometry=odometry,
         odometry_covariance=true if options.true_covariance else calibrated,
-        detections=detections,
+        detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(
             num_classes, confusion, names, source_text(NAME, options, config_path)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -27,9 +28,12 @@ from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
+    blocks,
     floats,
     metadata_for,
+    pieces,
     source_text,
+    within_reach,
 )
 from data_tools.scenarios.config import (
     MAX_NOISE_SCALE,
@@ -49,12 +53,15 @@ from data_tools.scenarios.geometry import (
 )
 from data_tools.scenarios.noise import random_streams
 from data_tools.scenarios.routes import RouteConfig, check_route, drive
+from pipeline.errors import InputError
 from pipeline.log import Detection, GroundTruthLandmark
 from pipeline.settings import positive, within
 
 logger = logging.getLogger(__name__)
 
 NAME = "planar-park"
+# The route's turns (places visited) at the most.
+MAX_TURNS = 10**6
 
 
 @dataclass(frozen=True)
@@ -144,6 +151,12 @@ def place_route(park: ParkConfig, length: float, rng: np.random.Generator) -> np
     current, previous = 0, -1
     route, total = [places[0]], 0.0
     while total < length:
+        if len(route) > MAX_TURNS:
+            raise InputError(
+                f"{NAME} config: route.length_m ({length:.0f} m) between park.places "
+                f"{float(distances[distances > 0].min()):.3g} m apart at the closest makes more "
+                f"than {MAX_TURNS} turns; a larger park.size_m or fewer places"
+            )
         options = [int(n) for n in nearest[current] if n != previous]
         fewest = min(visits[options])
         options = [n for n in options if visits[n] == fewest]
@@ -159,14 +172,23 @@ def plant_trees(park: ParkConfig, path_xy: np.ndarray, rng: np.random.Generator)
     """(M, 3) trunks: uniform in the park, min_spacing_m apart, clear of the path."""
     path_tree = cKDTree(path_xy)
     trees: list[np.ndarray] = []
+    # Trees by square cell of min_spacing_m: only the 3 x 3 cells around a new one can hold a
+    # tree closer than that, so each draw is checked against those alone.
+    cells: dict[tuple[int, int], list[np.ndarray]] = {}
     for _ in range(50 * park.tree_count):
         if len(trees) == park.tree_count:
             break
         xy = rng.uniform(0.0, park.size_m, 2)
         if path_tree.query(xy)[0] < park.path_clearance_m:
             continue
-        if trees and np.min(np.linalg.norm(np.array(trees) - xy, axis=1)) < park.min_spacing_m:
-            continue
+        if park.min_spacing_m > 0:
+            i, j = (int(v) for v in np.floor(xy / park.min_spacing_m))
+            near = [
+                t for a in (-1, 0, 1) for b in (-1, 0, 1) for t in cells.get((i + a, j + b), ())
+            ]
+            if near and np.min(np.linalg.norm(np.array(near) - xy, axis=1)) < park.min_spacing_m:
+                continue
+            cells.setdefault((i, j), []).append(xy)
         trees.append(xy)
     xy = np.array(trees)
     return np.concatenate([xy, np.zeros((len(xy), 1))], axis=1)
@@ -224,23 +246,25 @@ def stated_odometry_covariance(o: BiasedOdometryConfig, scale: float, true: bool
 # --- what the scanner sees --------------------------------------------------------------------
 
 
-def scan(
-    world: ParkWorld, s: ScannerConfig, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(pose index, tree id, body-frame position) of every trunk seen."""
-    offset = world.trees[None] - world.poses[:, None, :3, 3]
-    local = np.einsum("nji,nmj->nmi", world.poses[:, :3, :3], offset)
-    distance = np.linalg.norm(local, axis=-1)
-    bearing = np.arctan2(local[..., 1], local[..., 0])
-    in_view = (
-        (distance >= s.min_range_m)
-        & (distance <= s.max_range_m)
-        & (np.abs(bearing) <= math.radians(s.fov_deg) / 2)
-    )
-    pose_index, tree = np.nonzero(in_view)
-    seen = rng.random(len(tree)) < s.detection_probability
-    pose_index, tree = pose_index[seen], tree[seen]
-    return pose_index, tree, local[pose_index, tree]
+def trees_in_view(
+    world: ParkWorld, s: ScannerConfig
+) -> Iterator[tuple[slice, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    """For each block of poses, (pose index, tree id, body-frame position) of every trunk in
+    the scanner's field of view and range from them."""
+    trunks = cKDTree(world.trees[:, :2])
+    for poses in blocks(len(world.poses), len(world.trees)):
+        near = within_reach(trunks, world.poses[poses, :3, 3], s.max_range_m)
+        offset = world.trees[None, near] - world.poses[poses, None, :3, 3]
+        local = np.einsum("nji,nmj->nmi", world.poses[poses, :3, :3], offset)
+        distance = np.linalg.norm(local, axis=-1)
+        bearing = np.arctan2(local[..., 1], local[..., 0])
+        in_view = (
+            (distance >= s.min_range_m)
+            & (distance <= s.max_range_m)
+            & (np.abs(bearing) <= math.radians(s.fov_deg) / 2)
+        )
+        pose_index, k = np.nonzero(in_view)
+        yield poses, (pose_index + poses.start, near[k], local[pose_index, k])
 
 
 def clutter(
@@ -274,35 +298,46 @@ def simulate(
     odometry = biased_planar_odometry(relative_poses(poses), o, scale, streams["odometry"])
     covariance = stated_odometry_covariance(o, scale, options.true_covariance)
 
-    pose_index, tree, local = scan(world, s, streams["visibility"])
-    clutter_pose, clutter_local = clutter(len(poses), s, streams["false_positives"])
-    pose_index = np.concatenate([pose_index, clutter_pose])
-    truth = np.concatenate([tree, np.full(len(clutter_pose), -1)])
-    measured = bearing_elevation_range(np.concatenate([local, clutter_local]))
-    noise = streams["measurement"].standard_normal((len(truth), 2))
-    measured[:, 0] += s.sigma_bearing_rad * noise[:, 0]
-    measured[:, 1] = 0.0  # a planar scanner
-    measured[:, 2] = np.maximum(measured[:, 2] + s.sigma_range_m * noise[:, 1], 0.1)
     stated = floats(
         np.diag([s.stated_sigma_bearing_rad, s.stated_sigma_elevation_rad, s.stated_sigma_range_m])
         ** 2
     )
 
-    detections: list[list[Detection]] = [[] for _ in range(len(poses))]
-    # Within a scan, returns go by bearing, as a scanner sweeps (no hint of the truth).
-    for k in np.lexsort((-measured[:, 0], pose_index)):
-        detections[pose_index[k]].append(
-            Detection(
-                class_id=0,
-                score=1.0,
-                bearing=float(measured[k, 0]),
-                elevation=float(measured[k, 1]),
-                range=float(measured[k, 2]),
-                covariance=stated,
-                source="bbox",  # the contract knows tags and detector boxes; a trunk is the latter
-                truth_landmark_id=int(truth[k]),
+    def detections() -> Iterator[list[Detection]]:
+        """Each pose's detections, made a piece of the run at a time."""
+        for piece, (pose_index, tree, local) in pieces(
+            trees_in_view(world, s), s.clutter_per_frame
+        ):
+            seen = streams["visibility"].random(len(tree)) < s.detection_probability
+            pose_index, tree, local = pose_index[seen], tree[seen], local[seen]
+            clutter_pose, clutter_local = clutter(
+                piece.stop - piece.start, s, streams["false_positives"]
             )
-        )
+            pose_index = np.concatenate([pose_index, clutter_pose + piece.start])
+            truth = np.concatenate([tree, np.full(len(clutter_pose), -1)])
+            measured = bearing_elevation_range(np.concatenate([local, clutter_local]))
+            noise = streams["measurement"].standard_normal((len(truth), 2))
+            measured[:, 0] += s.sigma_bearing_rad * noise[:, 0]
+            measured[:, 1] = 0.0  # a planar scanner
+            measured[:, 2] = np.maximum(measured[:, 2] + s.sigma_range_m * noise[:, 1], 0.1)
+
+            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
+            # Within a scan, returns go by bearing, as a scanner sweeps (no hint of the truth).
+            for k in np.lexsort((-measured[:, 0], pose_index)):
+                frames[pose_index[k] - piece.start].append(
+                    Detection(
+                        class_id=0,
+                        score=1.0,
+                        bearing=float(measured[k, 0]),
+                        elevation=float(measured[k, 1]),
+                        range=float(measured[k, 2]),
+                        covariance=stated,
+                        source="bbox",  # the contract knows tags and detector boxes: a trunk
+                        truth_landmark_id=int(truth[k]),
+                    )
+                )
+            yield from frames
+
     landmarks = [
         GroundTruthLandmark(id=m, class_id=0, position=floats(trees[m]))  # type: ignore[arg-type]
         for m in range(len(trees))
@@ -312,7 +347,7 @@ def simulate(
         poses=poses,
         odometry=odometry,
         odometry_covariance=covariance,
-        detections=detections,
+        detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(
             1, np.ones((1, 1)), ["tree"], source_text(NAME, options, config_path)

@@ -2,26 +2,22 @@
 
 Each executor takes the tasks and yields their outcomes as they complete; the sweep does not
 care which one ran them. Runs are CPU-bound Python and GTSAM, so the local pool uses processes
-(started with "spawn": no state inherited from the driver). Pool workers die with the sweep,
-however it dies, and a sweep that is stopped ends the runs in progress. With Dask, every worker
-must see the output folder at the same path (a shared file system) to keep the runs' files;
-the metrics come back to the driver either way.
+(`pipeline.workers`: started with "spawn", no state inherited from the driver). Pool workers
+die with the sweep, however it dies, and a sweep that is stopped ends the runs in progress.
+With Dask, every worker must see the output folder at the same path (a shared file system) to
+keep the runs' files; the metrics come back to the driver either way.
 """
 
 from __future__ import annotations
 
-import ctypes
-import multiprocessing
 import os
-import signal
-import threading
-import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from concurrent.futures.process import BrokenProcessPool
 
 from data_tools.sweep.work import RunOutcome, RunTask, run_task
-from pipeline.errors import InputError
+from pipeline.errors import InputError, WorkerError
+from pipeline.workers import process_pool
 
 
 def default_workers() -> int:
@@ -37,58 +33,17 @@ def run_in_process(tasks: Sequence[RunTask]) -> Iterator[RunOutcome]:
         yield run_task(task)
 
 
-_PR_SET_PDEATHSIG = 1  # prctl(2)
-
-
-def _die_with(parent: int) -> None:
-    """A pool worker's start: it dies when the sweep does, whatever kills the sweep (Linux's
-    parent-death signal; elsewhere a thread that watches for the parent to go), and leaves
-    Ctrl-C to the sweep, which stops the workers itself."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        watched = libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        watched = False
-    if os.getppid() != parent:  # the parent died before the signal was set up
-        os._exit(1)
-    if not watched:
-
-        def watch() -> None:
-            while os.getppid() == parent:
-                time.sleep(1.0)
-            os._exit(1)
-
-        threading.Thread(target=watch, daemon=True).start()
-
-
-def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """End the runs in progress: their results will not be collected."""
-    # ProcessPoolExecutor has no public way to end running work before Python 3.14.
-    for process in list(getattr(pool, "_processes", {}).values()):
-        process.terminate()
-
-
 def run_in_pool(tasks: Sequence[RunTask], workers: int) -> Iterator[RunOutcome]:
-    context = multiprocessing.get_context("spawn")
-    pool = ProcessPoolExecutor(
-        max_workers=workers, mp_context=context, initializer=_die_with, initargs=(os.getpid(),)
-    )
-    futures = [pool.submit(run_task, task) for task in tasks]
-    finished = False
-    try:
-        for future in as_completed(futures):
-            yield future.result()
-        finished = True
-    except BrokenProcessPool:
-        raise RuntimeError(
-            "a worker process died abruptly (a crash, or out of memory); the runs finished "
-            "so far are kept: run the sweep again to resume"
-        ) from None
-    finally:  # interrupted, or the consumer stopped: drop what has not started, end the rest
-        if not finished:
-            _stop_workers(pool)
-        pool.shutdown(wait=True, cancel_futures=True)
+    with process_pool(workers) as pool:
+        futures = [pool.submit(run_task, task) for task in tasks]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        except BrokenProcessPool:
+            raise WorkerError(
+                "a worker process died abruptly (killed, out of memory, or a crash); the runs "
+                "finished so far are kept: run the sweep again to resume"
+            ) from None
 
 
 def run_on_dask(tasks: Sequence[RunTask], address: str) -> Iterator[RunOutcome]:

@@ -2,6 +2,10 @@
 and sweep.json alone (so they can be redone without running anything: see `report.py`), and,
 where the runs' folders are there, the paper's Fig. 5: the trajectory of one representative
 run per method in the base cell (the seed whose MM + NH RMSE is the median), by `mmslam plot`.
+
+The report (results.csv, tables.md, the figures, run.json) is one set of files, replaced all
+or nothing (`pipeline.outputs.FileSet`): written into `REPORT`'s staging folder, then moved
+into the sweep's folder together.
 """
 
 from __future__ import annotations
@@ -16,10 +20,11 @@ from data_tools.sweep.results import RESULTS_NAME, ResultRow, read_results
 from data_tools.sweep.stats import CHAMPION, representative_seed, rows_of_cell
 from data_tools.sweep.tables import held_factor, method_name, render_tables
 from pipeline.errors import InputError
-from pipeline.outputs import write_text
+from pipeline.outputs import FileSet, write_text
 
 logger = logging.getLogger(__name__)
 
+REPORT = "report"  # the name of the report's set of files (`FileSet`)
 DESCRIPTION_NAME = "sweep.json"
 TABLES_NAME = "tables.md"
 TRAJECTORIES_NAME = "fig_trajectories.png"
@@ -40,10 +45,12 @@ def read_description(out: Path) -> tuple[SweepConfig, tuple[str, ...]]:
     return from_json(text, path), code_versions_of(text)
 
 
-def trajectory_figure(out: Path, config: SweepConfig, rows: list[ResultRow]) -> Path | None:
-    """Write the base cell's representative runs, a panel per method, to fig_trajectories.png;
-    None without an MM + NH run to choose the seed by, or (with a warning) where the runs'
-    folders are not there to plot."""
+def trajectory_figure(
+    out: Path, config: SweepConfig, rows: list[ResultRow], into: Path
+) -> Path | None:
+    """Write the base cell's representative runs of the sweep folder `out`, a panel per
+    method, to fig_trajectories.png in `into`; None without an MM + NH run to choose the seed
+    by, or (with a warning) where the runs' folders are not there to plot."""
     cell = base_cell(config)
     mine = rows_of_cell(rows, cell)
     seed = representative_seed(mine, CHAMPION)
@@ -68,16 +75,22 @@ def trajectory_figure(out: Path, config: SweepConfig, rows: list[ResultRow]) -> 
         f"{config.name}, {cell.label()}: seed {seed}, the median {method_name(CHAMPION)} "
         f"translation RMSE of {seeds} seed(s)"
     )
-    path = out / TRAJECTORIES_NAME
+    path = into / TRAJECTORIES_NAME
     plot_runs(log, folders, path, title)
     return path
 
 
 def write_report(
-    out: Path, config: SweepConfig, rows: list[ResultRow], code_versions: tuple[str, ...] = ()
+    out: Path,
+    config: SweepConfig,
+    rows: list[ResultRow],
+    code_versions: tuple[str, ...] = (),
+    into: Path | None = None,
 ) -> list[Path]:
-    """Write tables.md and a figure per axis into `out`; return their paths."""
-    written = [out / TABLES_NAME]
+    """Write tables.md and a figure per axis of the sweep folder `out` into `into` (default
+    `out`); return their paths."""
+    into = out if into is None else into
+    written = [into / TABLES_NAME]
     write_text(written[0], render_tables(config, rows, code_versions))
     named = config.name if config.name == config.scenario else f"{config.name} ({config.scenario})"
     for axis in config.axes:
@@ -85,16 +98,20 @@ def write_report(
             f"{named}, C = {config.num_classes}, {held_factor(config, axis)}; "
             f"a box per method over {len(config.seeds)} seed(s)"
         )
-        path = out / figure_name(axis.name)
+        path = into / figure_name(axis.name)
         written.append(
             box_figure(rows, config.methods, axis, axis_cells(config, axis), path, title)
         )
-    trajectories = trajectory_figure(out, config, rows)
+    trajectories = trajectory_figure(out, config, rows, into)
     return written if trajectories is None else [*written, trajectories]
 
 
 def report(out: Path) -> list[Path]:
-    """Redo the tables and figures of the sweep folder `out` from its results.csv."""
+    """Redo the tables and figures of the sweep folder `out` from its results.csv, together."""
     out = Path(out)
     config, code_versions = read_description(out)
-    return write_report(out, config, read_results(out / RESULTS_NAME), code_versions)
+    with FileSet(out, REPORT) as files:  # first completes a report a killed sweep left
+        rows = read_results(out / RESULTS_NAME)
+        written = write_report(out, config, rows, code_versions, into=files.staging)
+        files.commit()
+    return [out / path.name for path in written]

@@ -1,29 +1,25 @@
 """`mmslam sweep`: every run of a sweep config not yet finished, then results, tables, figures.
 
 Reads as the steps it takes: load the config, claim the output folder, find the runs already
-finished (kept), run the others (in a local process pool or on a Dask cluster), write
-results.csv from all finished runs, then the report. A failed run is logged, recorded in its
-folder's error.txt and left unfinished, so the next sweep into the same folder tries it again.
+finished (kept), run the others (in a local process pool or on a Dask cluster), then write
+the report of all finished runs (results.csv, tables.md, the figures, run.json) as one set. A
+failed run is logged, recorded in its folder's error.txt and left unfinished, so the next
+sweep into the same folder tries it again.
 """
 
 from __future__ import annotations
 
 import logging
-import signal
 import subprocess
-import threading
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 from data_tools.sweep.config import SweepConfig, load_sweep_config, to_json, with_seeds
 from data_tools.sweep.executors import default_workers, execute
 from data_tools.sweep.grid import RUNS_DIR, RunKey, log_path, run_dir, runs
-from data_tools.sweep.reporting import DESCRIPTION_NAME, read_description, write_report
+from data_tools.sweep.reporting import DESCRIPTION_NAME, REPORT, read_description, write_report
 from data_tools.sweep.results import RESULTS_NAME, row_from_metrics, write_results
 from data_tools.sweep.stats import headlines, slowest_run
 from data_tools.sweep.tables import headline_text, slowest_text
@@ -34,8 +30,15 @@ from data_tools.sweep.work import (
     finished_metrics,
 )
 from pipeline import provenance
-from pipeline.errors import InputError
-from pipeline.outputs import METRICS, metrics_json, write_outputs, write_text
+from pipeline.errors import InputError, terminated_on_sigterm
+from pipeline.outputs import (
+    METRICS,
+    FileSet,
+    metrics_json,
+    refuse_read_only,
+    write_outputs,
+    write_text,
+)
 from pipeline.progress import Progress
 
 logger = logging.getLogger(__name__)
@@ -88,6 +91,7 @@ def claim_folder(out: Path, config: SweepConfig) -> tuple[str, ...]:
     Returns the code versions that made the runs already there."""
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: exists and is not a directory")
+    refuse_read_only(out, out)
     versions: tuple[str, ...] = ()
     if (out / DESCRIPTION_NAME).exists():
         earlier, versions = read_description(out)
@@ -165,24 +169,6 @@ class _Progress:
         self.shown.close()
 
 
-@contextmanager
-def terminate_as_interrupt() -> Iterator[None]:
-    """SIGTERM (a scheduler or `kill` stopping the sweep) does what Ctrl-C does: the runs in
-    progress end, the finished ones are kept, and the sweep says it was interrupted."""
-
-    def interrupt(signum: int, frame: FrameType | None) -> None:
-        raise KeyboardInterrupt
-
-    if threading.current_thread() is not threading.main_thread():  # signals reach main only
-        yield
-        return
-    previous = signal.signal(signal.SIGTERM, interrupt)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def finished_runs(out: Path, keys: list[RunKey]) -> dict[RunKey, dict[str, Any]]:
     """The metrics of the runs among `keys` already finished in `out`."""
     found = {key: finished_metrics(run_dir(out, key), key.method) for key in keys}
@@ -227,12 +213,25 @@ def run_sweep(
     progress: bool = True,
 ) -> SweepSummary:
     """Run every unfinished run of the sweep `config_path` into `out`, then write
-    results.csv, tables.md and a figure per axis there. Runs finished earlier are kept.
-    `seeds` replaces the config's seeds by 0..seeds-1.
+    results.csv, tables.md, a figure per axis and run.json there, together. Runs finished
+    earlier are kept. `seeds` replaces the config's seeds by 0..seeds-1.
 
     `workers` local processes (default: the cores), or the workers of the Dask scheduler at
     `dask_address`. Local workers are spawned, so a script that calls this with more than one
-    worker needs the usual `if __name__ == "__main__":` guard."""
+    worker needs the usual `if __name__ == "__main__":` guard. SIGTERM stops it as Ctrl-C
+    does, raising `Terminated` (a KeyboardInterrupt): the finished runs are kept."""
+    with terminated_on_sigterm():
+        return _run_sweep(config_path, out, workers, dask_address, seeds, progress)
+
+
+def _run_sweep(
+    config_path: Path,
+    out: Path,
+    workers: int | None,
+    dask_address: str | None,
+    seeds: int | None,
+    progress: bool,
+) -> SweepSummary:
     start, started = time.perf_counter(), provenance.utc_now()
     if workers is not None and (isinstance(workers, bool) or workers < 1):
         raise InputError(f"--workers must be at least 1, got {workers!r}")
@@ -251,22 +250,25 @@ def run_sweep(
     if tasks:
         code_versions = note_code_version(out, config, code_versions)
     logger.info("sweep %s: %d runs, %d finished before", config.name, len(keys), kept)
-    with terminate_as_interrupt():
-        failed = run_pending(
-            out,
-            tasks,
-            metrics,
-            workers=workers or default_workers(),
-            dask_address=dask_address,
-            progress=progress,
-        )
+    failed = run_pending(
+        out,
+        tasks,
+        metrics,
+        workers=workers or default_workers(),
+        dask_address=dask_address,
+        progress=progress,
+    )
 
     rows = [row_from_metrics(key, metrics[key]) for key in keys if key in metrics]
-    write_results(out / RESULTS_NAME, rows)
-    files = [out / RESULTS_NAME, *write_report(out, config, rows, code_versions)]
-    record = provenance.run_json(config, [config_path], started, time.perf_counter() - start)
-    write_text(out / provenance.RUN_RECORD, record)
-    files.append(out / provenance.RUN_RECORD)
+    with FileSet(out, REPORT) as report:  # all or nothing, as a replay's outputs
+        write_results(report.path(RESULTS_NAME), rows)
+        staged = [report.path(RESULTS_NAME)]
+        staged += write_report(out, config, rows, code_versions, into=report.staging)
+        record = provenance.run_json(config, [config_path], started, time.perf_counter() - start)
+        write_text(report.path(provenance.RUN_RECORD), record)
+        staged.append(report.path(provenance.RUN_RECORD))
+        report.commit()
+    files = [out / path.name for path in staged]
     return SweepSummary(
         name=config.name,
         out=out,

@@ -35,13 +35,7 @@ from pipeline.log.messages import (
 )
 
 T = TypeVar("T")
-SHOWN_CHARS = 40  # of a bad value in a message: a log's 10 MB string must not make a 10 MB line
-
-
-def shown(value: Any) -> str:
-    """A bad value, as an error message shows it: its repr, cut short."""
-    text = repr(value)
-    return text if len(text) <= SHOWN_CHARS else text[: SHOWN_CHARS - 3] + "..."
+shown = settings.shown  # a bad value, cut short: a log's 10 MB string must not make a 10 MB line
 
 
 class _NonFiniteError(ValueError):

@@ -26,8 +26,14 @@ class Module:
 
 FAST = ("-m", "not slow")
 # The front-end's whole runs (e2e) take minutes; the readers' own tests decide.
-DATASET_TESTS = ("tests/test_sequence_layouts.py", "-m", "not slow and not e2e")
+DATASET_TESTS = (
+    "tests/test_dataset_readers.py",
+    "tests/test_sequence_layouts.py",
+    "-m",
+    "not slow and not e2e",
+)
 LOG_TESTS = (
+    "tests/test_log_properties.py",
     "tests/test_log.py",
     "tests/test_log_integrity.py",
     "tests/test_log_doc.py",
@@ -126,6 +132,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
         "datasets/camera",
         "pipeline/datasets/camera.py",
         (
+            "tests/test_dataset_readers.py",
             "tests/test_sequence_layouts.py",
             "tests/test_kitti_layout.py",
             "tests/test_frontend_geometry.py",
@@ -377,6 +384,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
                 "a vector's length below its bound accepted",
                 "if not marker.low <= norm <= marker.high:",
                 "if not norm <= marker.high:",
+                "every Norm in messages.py has low 0 and a length is never negative",
             ),
             (
                 "a quaternion shorter than 1 accepted",
@@ -545,7 +553,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
     (
         "outputs",
         "pipeline/outputs.py",
-        ("tests/test_outputs.py", *FAST),
+        ("tests/test_output_files.py", "tests/test_outputs.py", *FAST),
         [
             (
                 "a trajectory to the millimetre",

@@ -15,7 +15,7 @@ HAVE := $(call minor,$(BIN)/python)
 # Python is rebuilt. Otherwise any working .venv of a supported Python is kept.
 ASKED := $(filter command line environment,$(origin PYTHON))
 
-.PHONY: demo test test-fast bench lint clean models shell docs
+.PHONY: demo test test-fast bench lint clean models shell docs mutate
 
 $(STAMP): pyproject.toml
 	@if [ -d $(VENV) ] && { [ -z "$(filter $(PYTHONS),$(HAVE))" ] || \
@@ -64,6 +64,12 @@ bench: $(STAMP)
 # apt-get install xvfb mesa-vulkan-drivers libgl1-mesa-dri libegl1 libvulkan1. A few minutes.
 docs: $(STAMP)
 	$(BIN)/python -m data_tools.rerun_docs
+
+# Mutation testing of the modules whose bugs users would not see (data_tools/mutations.py):
+# each named bug put into a copy, one at a time, its module's tests run; the score per module
+# and the survivors printed. Not in CI: tens of minutes. MODULE=log/codec runs one module.
+mutate: models
+	nice -n 10 $(BIN)/python -m data_tools.mutate $(if $(MODULE),--module $(MODULE))
 
 lint: $(STAMP)
 	$(BIN)/ruff check --fix .

@@ -96,6 +96,7 @@ def camera_info(
     D: np.ndarray,
     R: np.ndarray,
     P: np.ndarray,
+    distortion_model: str = "plumb_bob",
 ) -> Any:
     CameraInfo = ts.types["sensor_msgs/msg/CameraInfo"]
     RegionOfInterest = ts.types["sensor_msgs/msg/RegionOfInterest"]
@@ -103,7 +104,7 @@ def camera_info(
         header=_header(ts, stamp_ns, "camera"),
         height=size[1],
         width=size[0],
-        distortion_model="plumb_bob",
+        distortion_model=distortion_model,
         d=np.asarray(D, float),
         k=np.asarray(K, float).ravel(),
         r=np.asarray(R, float).ravel(),
@@ -132,11 +133,14 @@ def write_bag(
     camera_infos: bool = True,
     extra_topics: Sequence[str] = (),
     infos: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    distortion_model: str = "plumb_bob",
+    header_stamps_ns: Sequence[int] | None = None,
 ) -> Path:
     """A ROS 2 bag of the frames: each side's images on its topic, a CameraInfo beside each
-    (rectified: P's from the intrinsics), logged at their header stamps. `drop_right` frames
-    have no right image; right stamps are `right_offset_ns` after the left ones. `infos`: each
-    side's CameraInfo (K, D, R, P) instead."""
+    (rectified: P's from the intrinsics), logged at their header stamps (or at the frames'
+    stamps, with `header_stamps_ns` in the headers). `drop_right` frames have no right image;
+    right stamps are `right_offset_ns` after the left ones. `infos`: each side's CameraInfo
+    (K, D, R, P) instead, of `distortion_model`."""
     from rosbags.rosbag2 import StoragePlugin, Writer
 
     ts = _typestore()
@@ -165,8 +169,9 @@ def write_bag(
                 if side == 1 and index in drop_right:
                     continue
                 side_stamp = stamp + (right_offset_ns if side == 1 else 0)
+                header_stamp = side_stamp if header_stamps_ns is None else header_stamps_ns[index]
                 image = (frames.left, frames.right)[side][index]
-                message = image_message(ts, image, side_stamp, compressed)
+                message = image_message(ts, image, header_stamp, compressed)
                 writer.write(images[side], side_stamp, ts.serialize_cdr(message, image_type))
                 if info_connections:
                     K, D, R, P = (
@@ -174,7 +179,7 @@ def write_bag(
                         if infos is not None
                         else (k.camera_matrix, np.zeros(5), np.eye(3), projections[side])
                     )
-                    info = camera_info(ts, side_stamp, size, K, D, R, P)
+                    info = camera_info(ts, side_stamp, size, K, D, R, P, distortion_model)
                     data = ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo")
                     writer.write(info_connections[side], side_stamp, data)
             for connection in others:
@@ -183,8 +188,67 @@ def write_bag(
     return path
 
 
+def write_ros1_bag(
+    path: Path,
+    frames: Frames,
+    infos: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    topics: tuple[str, str] = ("/stereo/left/image_raw", "/stereo/right/image_raw"),
+) -> Path:
+    """A ROS 1 `.bag` of the frames (rosbags' ROS 1 writer, Noetic's message types: upper-case
+    K, D, R, P in CameraInfo): mono8 images and a CameraInfo beside each, as `write_bag`."""
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
+    Image, CameraInfo = ts.types["sensor_msgs/msg/Image"], ts.types["sensor_msgs/msg/CameraInfo"]
+    RegionOfInterest = ts.types["sensor_msgs/msg/RegionOfInterest"]
+    k = frames.intrinsics
+    projections = rectified_projections(k)
+    with Writer(path) as writer:
+        images, cameras = [], []
+        for topic in topics:
+            images.append(writer.add_connection(topic, Image.__msgtype__, typestore=ts))
+            info_topic = f"{topic.rsplit('/', 1)[0]}/camera_info"
+            cameras.append(writer.add_connection(info_topic, CameraInfo.__msgtype__, typestore=ts))
+        for index, stamp in enumerate(frames.stamps_ns):
+            header = Header(
+                seq=index, stamp=Time(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id="cam"
+            )
+            for side in (0, 1):
+                image = (frames.left, frames.right)[side][index]
+                height, width = image.shape[:2]
+                message = Image(header, height, width, "mono8", 0, width, image.ravel())
+                writer.write(images[side], stamp, ts.serialize_ros1(message, Image.__msgtype__))
+                K, D, R, P = (
+                    infos[side]
+                    if infos is not None
+                    else (k.camera_matrix, np.zeros(5), np.eye(3), projections[side])
+                )
+                info = CameraInfo(
+                    header=header,
+                    height=k.height,
+                    width=k.width,
+                    distortion_model="plumb_bob",
+                    D=np.asarray(D, float),
+                    K=np.asarray(K, float).ravel(),
+                    R=np.asarray(R, float).ravel(),
+                    P=np.asarray(P, float).ravel(),
+                    binning_x=0,
+                    binning_y=0,
+                    roi=RegionOfInterest(0, 0, 0, 0, False),
+                )
+                data = ts.serialize_ros1(info, CameraInfo.__msgtype__)
+                writer.write(cameras[side], stamp, data)
+    return path
+
+
 def sensor_yaml(
-    K: np.ndarray, distortion: np.ndarray, body_from_camera: np.ndarray, size: tuple[int, int]
+    K: np.ndarray,
+    distortion: np.ndarray,
+    body_from_camera: np.ndarray,
+    size: tuple[int, int],
+    distortion_model: str = "radial-tangential",
 ) -> str:
     def numbers(values: np.ndarray) -> str:
         return "[" + ", ".join(repr(float(v)) for v in np.ravel(values)) + "]"
@@ -194,7 +258,7 @@ def sensor_yaml(
         f"T_BS:\n  cols: 4\n  rows: 4\n  data: {numbers(body_from_camera)}\n\n"
         f"rate_hz: 10\nresolution: [{size[0]}, {size[1]}]\ncamera_model: pinhole\n"
         f"intrinsics: {numbers([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])} #fu, fv, cu, cv\n"
-        "distortion_model: radial-tangential\n"
+        f"distortion_model: {distortion_model}\n"
         f"distortion_coefficients: {numbers(distortion)}\n"
     )
 
@@ -204,11 +268,12 @@ def write_euroc(
     frames: Frames,
     cameras: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     stamps_ns: Sequence[int] | None = None,
+    distortion_model: str = "radial-tangential",
 ) -> Path:
     """A EuRoC folder of the frames: `mav0/cam0` left, `mav0/cam1` right. `cameras`: each
-    camera's (K, distortion, T_BS); default a rectified pair (the right camera +baseline
-    along the left one's x, the body frame an arbitrary rigid transform of the left
-    camera's)."""
+    camera's (K, distortion, T_BS) of `distortion_model`; default a rectified pair (the right
+    camera +baseline along the left one's x, the body frame an arbitrary rigid transform of
+    the left camera's)."""
     k = frames.intrinsics
     stamps = list(stamps_ns if stamps_ns is not None else frames.stamps_ns)
     if cameras is None:
@@ -237,7 +302,7 @@ def write_euroc(
             lines.append(f"{stamp},{stamp}.png")
         (folder / "data.csv").write_text("\n".join(lines) + "\n")
         (folder / "sensor.yaml").write_text(
-            sensor_yaml(K, distortion, body_from_camera, (k.width, k.height))
+            sensor_yaml(K, distortion, body_from_camera, (k.width, k.height), distortion_model)
         )
     return root
 

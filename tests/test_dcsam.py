@@ -527,3 +527,99 @@ def test_a_bad_dcsam_setting_is_one_line_and_exit_2(tmp_path, capsys):
     assert status == 2 and err.count("\n") == 1 and "Traceback" not in err
     assert "'dcsam.max_alternations' must be in [1, 1000], got 0" in err
     assert not (tmp_path / "o").exists()
+
+
+# ---------------------------------------------------------------- the method's bookkeeping
+
+
+def two_classes_scene() -> Scene:
+    """Three landmarks, two of class 1 beside each other, seen around a square with some
+    reports wrong, under a confusion matrix that is not symmetric (P(r | c) = confusion[c, r]:
+    reading it by row instead of by column gives other numbers)."""
+    confusion = np.array([[0.9, 0.1], [0.35, 0.65]])
+    poses = square_loop(8.0, 1.0, laps=1.25)
+    landmarks = np.array([[4.0, 3.0, 0.0], [6.0, -3.0, 0.0], [4.5, 3.6, 0.0]])
+    misreports = {(0, 0), (1, 0), (2, 1), (5, 2), (9, 0), (11, 2)}
+    return Scene(poses, landmarks, np.array([0, 1, 1]), confusion=confusion, misreports=misreports)
+
+
+@pytest.fixture(scope="module")
+def two_classes_run(tmp_path_factory):
+    path = tmp_path_factory.mktemp("dcsam") / "classes.mcap"
+    scene = two_classes_scene()
+    log = write_scene(path, scene, odom_noise=1.0, meas_noise=1.0)
+    backend = run_backend(log, "dcsam")
+    backend.result()
+    return backend, scene.confusion
+
+
+def held_reports(backend, landmark_id: int, leaving_out=None) -> np.ndarray:
+    """How many detections now on `landmark_id` reported each class (one left out)."""
+    counts = np.zeros(2)
+    for r in backend.records:
+        if r is not leaving_out and r.landmark_id == landmark_id:
+            counts[r.measurement.detection.class_id] += 1
+    return counts
+
+
+def test_each_landmark_s_class_is_what_the_detections_it_holds_report(two_classes_run):
+    backend, confusion = two_classes_run
+    held = {r.landmark_id for r in backend.records if r.landmark_id != NULL}
+    assert set(backend.landmarks.landmarks) == held  # none that no detection holds
+    assert len(held) >= 3
+    for j, landmark in backend.landmarks.landmarks.items():
+        counts = held_reports(backend, j)
+        likelihood = np.array([np.prod(confusion[c] ** counts) for c in range(2)])
+        np.testing.assert_allclose(landmark.class_probabilities, likelihood / likelihood.sum())
+
+
+def test_the_discrete_step_weighs_a_detection_by_the_others_reports(two_classes_run):
+    """A detection's report enters its modes through P(report | class) (the confusion's
+    column), and a landmark's class evidence for it comes from the other detections it holds,
+    never its own report counted twice."""
+    backend, confusion = two_classes_run
+    method = backend.method
+    hybrid = [r for r in backend.records if isinstance(r, HybridRecord)]
+    assert len(hybrid) > 20
+    for r in hybrid:
+        np.testing.assert_allclose(r.report, confusion[:, r.measurement.detection.class_id])
+        evidence = method._evidence_outside([r])
+        for j in r.landmark_ids:
+            counts = held_reports(backend, j, leaving_out=r)
+            np.testing.assert_allclose(evidence[j], class_log_evidence(counts, confusion))
+
+
+def test_each_detection_holds_the_most_probable_of_its_modes(two_classes_run):
+    backend, _ = two_classes_run
+    for r in (r for r in backend.records if isinstance(r, HybridRecord)):
+        probabilities = [*r.weights, r.null_weight]
+        assert len(r.weights) == len(r.landmark_ids)
+        unmade = 1.0 - sum(probabilities)  # a landmark of its own not made yet
+        assert unmade == pytest.approx(0.0, abs=1e-9) or len(r.landmark_ids) == r.num_candidates
+        held = r.null_weight if r.landmark_id == NULL else r.weights[r.active]
+        assert held >= max(*probabilities, unmade) - 1e-12
+        assert r.mode == (r.num_candidates + 1 if r.landmark_id == NULL else r.active)
+
+
+def test_refine_returns_the_detections_it_switched(tmp_path):
+    """A detection put on the wrong one of two landmarks: the next alternation moves it back,
+    counts the switch and reports the record; the landmark it left, held by no detection any
+    more, leaves the map at the end, and one taken again comes back."""
+    log = write_scene(tmp_path / "two.mcap", two_landmarks_scene(), odom_noise=0.0, meas_noise=0.0)
+    backend = run_backend(log, "dcsam")
+    method, context = backend.method, backend.context
+    record = record_at(backend, 5, 0)
+    right = record.landmark_id
+    wrong = next(j for j in record.landmark_ids[: record.num_candidates] if j != right)
+    method._switch(record, record.landmark_ids.index(wrong))
+    assert record.landmark_id == wrong and record.switches == 1
+    moved = context.after_update(context.solver.update())
+    switched = method.refine(moved | {X(5), L(right), L(wrong)})
+    assert switched and all(r is record for r in switched)
+    assert record.landmark_id == right and record.switches == 1 + len(switched)
+    # the null: a mode of its own, K + 1
+    method._switch(record, record.num_candidates + 1)
+    assert record.landmark_id == NULL and record.mode == record.num_candidates + 1
+    assert right in backend.landmarks.landmarks  # others hold it
+    result = backend.result()
+    assert record.landmark_id == right and right in result.landmark_ids

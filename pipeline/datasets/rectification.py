@@ -149,7 +149,8 @@ def stereo_rectification(
     import cv2
 
     rotation, translation = right_from_left[:3, :3], right_from_left[:3, 3]
-    column = translation.reshape(3, 1)  # OpenCV 5 refuses a row
+    # A column (OpenCV 5 refuses a row), contiguous (its fisheye module refuses a view).
+    column = np.ascontiguousarray(translation, dtype=float).reshape(3, 1)
     baseline = float(np.linalg.norm(translation))
     fx = float(left.K[0, 0])
     angle = float(np.linalg.norm(cv2.Rodrigues(rotation)[0]))

@@ -176,6 +176,12 @@ def decode_image(message: Any, msgtype: str, where: str) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
+def _info_field(message: Any, name: str) -> Any:
+    """A CameraInfo matrix: ROS 2 names them k, d, r, p; ROS 1 K, D, R, P."""
+    value = getattr(message, name, None)
+    return getattr(message, name.upper()) if value is None else value
+
+
 def camera_model_from_info(message: Any, where: str) -> tuple[CameraModel, np.ndarray, np.ndarray]:
     """A CameraInfo's camera (K, D, its model), rectifying rotation R and projection P."""
     model = DISTORTION_MODELS.get(message.distortion_model or "plumb_bob")
@@ -184,10 +190,10 @@ def camera_model_from_info(message: Any, where: str) -> tuple[CameraModel, np.nd
             f"{where}: distortion model {message.distortion_model!r} is not one of "
             f"{', '.join(DISTORTION_MODELS)}"
         )
-    K = np.asarray(message.k, float).reshape(3, 3)
-    R = np.asarray(message.r, float).reshape(3, 3)
-    P = np.asarray(message.p, float).reshape(3, 4)
-    D = np.asarray(message.d, float).ravel()
+    K = np.asarray(_info_field(message, "k"), float).reshape(3, 3)
+    R = np.asarray(_info_field(message, "r"), float).reshape(3, 3)
+    P = np.asarray(_info_field(message, "p"), float).reshape(3, 4)
+    D = np.asarray(_info_field(message, "d"), float).ravel()
     if not all(np.all(np.isfinite(m)) for m in (K, R, P, D)):
         raise InputError(f"{where}: K, D, R or P holds a number that is not finite")
     if not np.any(R):  # left empty by some drivers: no rectifying rotation

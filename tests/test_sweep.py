@@ -26,7 +26,7 @@ from pipeline.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "configs" / "sweeps"
-SMALL_SCENARIO = SWEEPS / "small-indoor-tags.toml"
+SMALL_SCENARIO = ROOT / "configs" / "scenarios" / "small-indoor-tags.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 # 3 cells (the base, noise 0, misclassification 30 %) x 1 seed x 3 methods = 9 short runs.

@@ -58,6 +58,7 @@ from data_tools.scenarios.noise import (
 )
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.errors import InputError
+from pipeline.frontend.classes import tag_class_names
 from pipeline.log import Detection, GroundTruthLandmark, RelativePose
 from pipeline.settings import within
 
@@ -290,10 +291,6 @@ def visible_tags(world: IndoorWorld, camera: TagCameraConfig) -> tuple[np.ndarra
 # --- the run --------------------------------------------------------------------------------
 
 
-def class_names(num_classes: int) -> list[str]:
-    return [f"tag-id-mod-{num_classes}-is-{c}" for c in range(num_classes)]
-
-
 def simulate(
     config: IndoorTagsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
@@ -369,7 +366,7 @@ def simulate(
         metadata=metadata_for(
             num_classes,
             confusion,
-            class_names(num_classes),
+            tag_class_names(num_classes),
             source_text(NAME, options, config_path),
         ),
     )

@@ -32,6 +32,7 @@ from pipeline.frontend.ground_truth import box_corners, projected_box, read_land
 from pipeline.frontend.model_files import MODELS_ENV
 from pipeline.frontend.run import class_metadata, open_sequence, run_frontend, run_objects
 from pipeline.log import read_log
+from tests import real_data
 from tests.detector import installed
 
 DEMO_FRAMES = 40
@@ -175,6 +176,25 @@ def test_the_default_config_boxes_the_rendered_cars(demo_log):
         assert names[detection.class_id] in ("car", "van", "truck")
     for detection in on_cars:
         assert landmarks[detection.truth_landmark_id]["kind"] == "box"
+
+
+KITTI_CLIP = real_data.REAL_DATA / "kitti-clip-1"
+
+
+@pytest.mark.slow
+@pytest.mark.e2e
+@real_data.needs(KITTI_CLIP)
+def test_the_default_config_boxes_the_cars_of_a_real_kitti_clip(tmp_path):
+    # 51 real frames of a street with parked cars: measured 93 boxes, every one a car
+    installed()
+    out = tmp_path / "k.mcap"
+    assert main(["frontend", str(KITTI_CLIP), "--out", str(out), "-q"]) == 0
+    log = read_log(out)
+    boxes = [d for m in log.detections for d in m.detections if d.source == "bbox"]
+    assert len(boxes) >= 50
+    assert {log.metadata.class_names[d.class_id] for d in boxes} == {"car"}
+    ranges = [d.range for d in boxes]  # measured: 5.6-157 m, most of them parked near
+    assert min(ranges) > 2.0 and 5.0 < float(np.median(ranges)) < 40.0
 
 
 def test_without_a_model_boxes_are_off_with_a_note_unless_required(tmp_path, monkeypatch, caplog):

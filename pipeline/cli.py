@@ -75,10 +75,12 @@ each plot, a table of the results. It is put together once every run has finishe
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
 """,
     "convert": """examples:
-  mmslam convert .venv/lib/python3.11/site-packages/gtsam/Data/victoria_park.txt --out out/vp.mcap
+  mmslam convert victoria_park.txt --out out/vp.mcap
   mmslam replay out/vp.mcap --method known --out out/vp-known
   mmslam replay out/vp.mcap --method mm-nh --out out/vp-mm-nh
 
+Victoria Park ships with GTSAM; this prints where:
+  python -c 'import gtsam; print(gtsam.findExampleDataFile("victoria_park.txt"))'
 The file's landmark ids become each detection's truth_landmark_id: known replays the given
 associations, and every replay's metrics.json scores its associations against them.
 """,

@@ -57,8 +57,8 @@ PICTURES = [
             "A KITTI-05-length run (mmslam simulate kitti05-cars, odometry noise x3), mm-nh: "
             "the plots over the whole run of 2,761 poses."),
     Picture("kitti05-compare.png", "kitti05-compare.rrd", None,
-            "mmslam compare on that log, known, ml and mm-nh: the maps side by side, a line a "
-            "method in each plot, the table of results."),
+            "mmslam compare on that log, known, ml and mm-nh: the maps side by side with one "
+            "legend, a line a method in each plot, the table of results."),
 ]  # fmt: skip
 
 
@@ -173,7 +173,8 @@ def write_readme(out: Path, work: Path, commands: dict[str, list[str]], commit: 
         "",
         f"- commit: {commit}",
         f"- Rerun {rerun.__version__}, the viewer at 1600×1000 on Mesa's software Vulkan under "
-        "Xvfb; every picture at its recording's last pose, reduced to 256 colours",
+        "Xvfb; every picture at its recording's last pose (the demo's: the keyframe with the most "
+        "boxes), reduced to 256 colours",
         f"- made: {datetime.date.today().isoformat()}",
         "",
         "The demo's sequence: `python -m data_tools.render demo --out out/docs/sequence` "

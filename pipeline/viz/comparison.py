@@ -1,9 +1,9 @@
 """One recording of several runs over the same log, to compare methods at a glance: each run's
 own recording (as its sink wrote it, in whatever process ran it) moved under `/runs/<method>`,
-their maps side by side (one legend, in the first, naming what any run drew), each plot a line
-per method with a legend (the reference, known, wide beneath the others, so that a method that
-matches it leaves it visible), a table of their results. The log's poses are every run's
-timeline, so the time cursor stands at the same moment in all of them.
+their maps side by side and one legend beside them (naming what any run drew), each plot a
+line per method with a legend (the reference, known, wide beneath the others, so that a
+method that matches it leaves it visible), a table of their results. The log's poses are
+every run's timeline, so the time cursor stands at the same moment in all of them.
 
 Why a comparison is put together from finished recordings rather than logged live by one
 process: the runs can go on in parallel processes, and each run's recording stays exactly what
@@ -174,7 +174,7 @@ def map_title(method: str) -> str:
 def comparison_blueprint(
     frame: MapFrame, methods: Sequence[str], plots: list[Plot], plot_window: int
 ) -> rrb.Blueprint:
-    """The maps side by side across the top, the legend in the first; the plots below, each
+    """The maps side by side across the top, the legend beside them; the plots below, each
     with a legend (the null-hypothesis rate and the time, and the switches and the merges,
     as tabs of one cell each), and the table of results beside them (each run's summary and
     the runs' association events as tabs behind it)."""

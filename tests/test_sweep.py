@@ -235,7 +235,7 @@ def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, t
     out = tmp_path / "out"
     shutil.copytree(first, out)
     config = write(tmp_path, TINY.split("[[axes]]")[0])  # the base cell of the same set-up
-    args = ["sweep", str(config), "--out", str(out), "--workers", "1", "-q"]
+    args = ["sweep", str(config), "--out", str(out), "--workers", "1"]  # no -q: its result lines
     assert cli_main([*args, "--seeds", "2"]) == 0
     printed = capsys.readouterr().out.splitlines()
     assert printed[0].startswith("sweep tiny: 6 runs (3 new, 3 kept)")

@@ -168,7 +168,7 @@ def test_a_failed_run_writes_no_recording(tmp_path, capsys):
     log_path = small_log(tmp_path / "log.mcap", truth_ids=False)
     target = tmp_path / "all.rrd"
     status = main(["compare", str(log_path), "--methods", "ml,known", "--out",
-                   str(tmp_path / "runs"), "--rrd", str(target)])  # fmt: skip
+                   str(tmp_path / "runs"), "--rrd", str(target), "-q"])  # fmt: skip
     err = capsys.readouterr().err
     assert status == 2 and "truth_landmark_id" in err and len(err.strip().splitlines()) == 1
     assert not target.exists()

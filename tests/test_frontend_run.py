@@ -211,6 +211,11 @@ def test_without_a_model_boxes_are_off_with_a_note_unless_required(tmp_path, mon
     required.write_text("[objects]\nrequire_model = true\n")
     with pytest.raises(InputError, match="no model at"):
         run_frontend(root, tmp_path / "other.mcap", required, progress=False)
+    # a bad sequence is the one line: no note about the model before it
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="pipeline"), pytest.raises(InputError):
+        run_frontend(tmp_path / "no-such-sequence", tmp_path / "x.mcap", progress=False)
+    assert not caplog.records
 
 
 def test_simulate_and_the_frontend_name_the_tag_classes_alike(tmp_path):

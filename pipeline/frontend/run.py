@@ -152,18 +152,24 @@ def run_apriltags(
     return per_keyframe
 
 
-def make_object_stage(config: FrontendConfig) -> ObjectStage | None:
-    """The object-box stage if `[objects] enabled` and its model is installed (without it, a
-    note, or an error if `require_model`); imported only then (it loads a model)."""
+def boxes_wanted(config: FrontendConfig) -> bool:
+    """Whether the object-box stage runs: `[objects] enabled`, and its model installed (or
+    `require_model`, which makes a missing model an error)."""
     objects = config.objects
-    if not objects.enabled:
-        return None
-    if not objects.model_path.is_file() and not objects.require_model:
-        log.warning(
-            "object boxes off: no detector model at %s; `make models` (or `python -m "
-            "data_tools.models install`) installs yolov3-tiny there",
-            objects.model_path,
-        )
+    return objects.enabled and (objects.require_model or objects.model_path.is_file())
+
+
+def make_object_stage(config: FrontendConfig) -> ObjectStage | None:
+    """The object-box stage where `boxes_wanted` (enabled without its model: a note, no
+    stage); imported only then (it loads a model)."""
+    objects = config.objects
+    if not boxes_wanted(config):
+        if objects.enabled:
+            log.warning(
+                "object boxes off: no detector model at %s; `make models` (or `python -m "
+                "data_tools.models install`) installs yolov3-tiny there",
+                objects.model_path,
+            )
         return None
     from pipeline.frontend.objects import ObjectDetector
 
@@ -391,14 +397,14 @@ def run_frontend(
     options = SequenceOptions(
         config.input.stereo_stamp_tolerance, left_topic, right_topic, calibration
     )
-    object_stage = make_object_stage(config)
-    sequence = open_sequence(sequence_dir, object_stage is not None, options)
+    sequence = open_sequence(sequence_dir, boxes_wanted(config), options)
     if len(sequence) < 2:
         raise InputError(f"sequence {sequence_dir}: needs at least two frames")
     stamps_ns(sequence)  # refuse bad times before the work
     landmarks_path = Path(sequence_dir) / LANDMARKS_FILE
     truth = read_landmarks(landmarks_path) if landmarks_path.is_file() else None
     body_poses = None if sequence.gt_poses is None else camera_poses_to_body(sequence.gt_poses)
+    object_stage = make_object_stage(config)
     seconds: dict[str, float] = {}
 
     with _timed(seconds, "odometry"):

@@ -1,9 +1,11 @@
 """`make docs`: the README's and docs' Rerun pictures, made again from the current code.
 
-Runs the logs and replays the pictures show, checks every recording with `rerun rrd verify`,
-takes the screenshots headless (`data_tools/screenshots.py`: Xvfb, software Vulkan, the Rerun
-viewer) at each run's last pose, and writes `docs/rerun/README.md`: the commit they were made
-at, the commands, the recordings' sizes, what each picture shows.
+Runs the logs and replays the pictures show (images to map on `make demo`'s rendered drive,
+the README's indoor session, a KITTI-05-length log), checks every recording with `rerun rrd
+verify`, takes the screenshots headless (`data_tools/screenshots.py`: Xvfb, software Vulkan,
+the Rerun viewer) at each run's last pose (the demo's: the keyframe with the most boxes), and
+writes `docs/rerun/README.md`: the commit they were made at, the commands, the recordings'
+sizes, what each picture shows.
 
 Usage: python -m data_tools.rerun_docs [--out docs/rerun] [--work out/docs]
 """
@@ -39,6 +41,11 @@ class Picture:
 
 
 PICTURES = [
+    Picture("demo-mm-nh.png", "demo-mm-nh.rrd", None,
+            "Images to map: make demo's rendered drive through the front-end (visual "
+            "odometry, AprilTags, yolov3-tiny boxes with stereo range) and mm-nh, at the "
+            "keyframe with the most boxes: each box over the camera image with its class, "
+            "score, range and the landmark it went to; the tags and cars in the map."),
     Picture("indoor-mm-nh.png", "indoor-mm-nh.rrd", None,
             "The indoor run with mm-nh at its last pose: the whole layout."),
     Picture("indoor-ml.png", "indoor-ml.rrd", None,
@@ -50,8 +57,8 @@ PICTURES = [
             "A KITTI-05-length run (mmslam simulate kitti05-cars, odometry noise x3), mm-nh: "
             "the plots over the whole run of 2,761 poses."),
     Picture("kitti05-compare.png", "kitti05-compare.rrd", None,
-            "mmslam compare on that log, known, ml and mm-nh: the maps side by side, a line a "
-            "method in each plot, the table of results."),
+            "mmslam compare on that log, known, ml and mm-nh: the maps side by side with one "
+            "legend, a line a method in each plot, the table of results."),
 ]  # fmt: skip
 
 
@@ -79,9 +86,18 @@ def _commit() -> str:
 
 def make_runs(work: Path) -> dict[str, list[str]]:
     """The logs and recordings the pictures show; the commands that made them."""
+    from data_tools.render import render_sequence
+
     work.mkdir(parents=True, exist_ok=True)
     indoor, kitti = str(work / "indoor.mcap"), str(work / "kitti05.mcap")
+    sequence, demo = work / "sequence", str(work / "demo.mcap")
+    if not (sequence / "render.json").exists():
+        log.info("rendering the demo sequence into %s", sequence)
+        render_sequence("demo", sequence)
     commands = {
+        "images to a log": ["frontend", str(sequence), "--out", demo, "--images"],
+        "images to map": ["replay", demo, "--method", "mm-nh", "--out",
+                          str(work / "demo-mm-nh"), "--rrd", str(work / "demo-mm-nh.rrd")],
         "indoor log": ["simulate", *INDOOR[:1], "--out", indoor, *INDOOR[1:]],
         "indoor mm-nh": ["replay", indoor, "--method", "mm-nh", "--out",
                          str(work / "indoor-mm-nh"), "--rrd", str(work / "indoor-mm-nh.rrd")],
@@ -124,6 +140,17 @@ def last_pose(recording: Path) -> int:
     return last
 
 
+def most_boxes_pose(log_path: Path) -> int:
+    """The pose whose keyframe has the most box detections (the first of them)."""
+    from pipeline.log import read_log
+
+    counts = [
+        (sum(d.source == "bbox" for d in m.detections), -m.pose_index)
+        for m in read_log(log_path).detections
+    ]
+    return -max(counts)[1]
+
+
 def reduce_colours(path: Path) -> None:
     from PIL import Image
 
@@ -146,8 +173,12 @@ def write_readme(out: Path, work: Path, commands: dict[str, list[str]], commit: 
         "",
         f"- commit: {commit}",
         f"- Rerun {rerun.__version__}, the viewer at 1600×1000 on Mesa's software Vulkan under "
-        "Xvfb; every picture at its recording's last pose, reduced to 256 colours",
+        "Xvfb; every picture at its recording's last pose (the demo's: the keyframe with the most "
+        "boxes), reduced to 256 colours",
         f"- made: {datetime.date.today().isoformat()}",
+        "",
+        "The demo's sequence: `python -m data_tools.render demo --out out/docs/sequence` "
+        "(as `make demo` renders it).",
         "",
         "| picture | what it shows |",
         "|---|---|",
@@ -197,7 +228,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     try:
         for recording in recordings:
-            pose = last_pose(recording)
+            demo = recording.name.startswith("demo")
+            pose = most_boxes_pose(args.work / "demo.mcap") if demo else last_pose(recording)
             shots = [
                 Shot(args.out / p.name, pose, p.maximised)
                 for p in PICTURES

@@ -83,10 +83,12 @@ each plot, a table of the results. It is put together once every run has finishe
   mmslam plot out/tags.mcap out/tags-known out/tags-ml out/tags-mm-nh --out out/tags.png
 """,
     "convert": """examples:
-  mmslam convert .venv/lib/python3.11/site-packages/gtsam/Data/victoria_park.txt --out out/vp.mcap
+  mmslam convert victoria_park.txt --out out/vp.mcap
   mmslam replay out/vp.mcap --method known --out out/vp-known
   mmslam replay out/vp.mcap --method mm-nh --out out/vp-mm-nh
 
+Victoria Park ships with GTSAM; this prints where:
+  python -c 'import gtsam; print(gtsam.findExampleDataFile("victoria_park.txt"))'
 The file's landmark ids become each detection's truth_landmark_id: known replays the given
 associations, and every replay's metrics.json scores its associations against them.
 """,
@@ -119,7 +121,7 @@ class _VersionAction(argparse.Action):
     def __call__(self, parser: argparse.ArgumentParser, *args: Any, **kwargs: Any) -> None:
         from pipeline.provenance import version_text
 
-        print(version_text())
+        print(version_text(), flush=True)
         parser.exit(0)
 
 
@@ -183,6 +185,13 @@ def _command_line(args: argparse.Namespace) -> list[str]:
     return ["mmslam", *args.argv]
 
 
+def _say(args: argparse.Namespace, *lines: str) -> None:
+    """A command's result lines on stdout; none under -q (errors only)."""
+    if not args.quiet:
+        for line in lines:
+            print(line)
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from data_tools.scenarios import simulate
 
@@ -196,7 +205,7 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         true_covariance=args.true_covariance,
         config_path=args.config,
     )
-    print(summary.summary_line())
+    _say(args, summary.summary_line())
     return 0
 
 
@@ -204,7 +213,7 @@ def _cmd_convert(args: argparse.Namespace) -> int:
     from data_tools.landmarks2d import convert_landmarks2d, load_landmarks2d_config
 
     summary = convert_landmarks2d(args.source, args.out, load_landmarks2d_config(args.config))
-    print(summary.summary_line())
+    _say(args, summary.summary_line())
     return 0
 
 
@@ -231,7 +240,7 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
     finally:
         if sink is not None:
             sink.close()
-    print(summary.summary_line())
+    _say(args, summary.summary_line())
     return 0
 
 
@@ -248,9 +257,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         seeds=args.seeds,
         progress=not args.quiet,
     )
-    print(summary.summary_line())
-    for line in summary.method_lines:
-        print(line)
+    _say(args, summary.summary_line(), *summary.method_lines)
     return 1 if summary.failed else 0
 
 
@@ -288,7 +295,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
         command=_command_line(args),
     )
     logging.getLogger("mmslam").info("wrote %s", args.out)
-    print(result.summary_line())
+    _say(args, result.summary_line())
     return 0
 
 
@@ -320,10 +327,9 @@ def _cmd_compare(args: argparse.Namespace) -> int:
         progress=not args.quiet,
         command=_command_line(args),
     )
-    for result in results:
-        print(result.summary_line())
+    _say(args, *(result.summary_line() for result in results))
     if args.rrd is not None:
-        print(f"wrote {args.rrd}")
+        _say(args, f"wrote {args.rrd}")
     return 0
 
 
@@ -331,7 +337,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from pipeline.export import export_ground_truth
 
     for path in export_ground_truth(args.log, args.ground_truth, args.landmarks):
-        print(f"wrote {path}")
+        _say(args, f"wrote {path}")
     return 0
 
 
@@ -339,7 +345,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     from data_tools.plot_runs import plot_runs
 
     plot_runs(args.log, args.runs, args.out)
-    print(f"wrote {args.out}")
+    _say(args, f"wrote {args.out}")
     return 0
 
 
@@ -360,8 +366,10 @@ def _verbosity(defaults: bool) -> argparse.ArgumentParser:
         "-v", "--verbose", action="store_true", help="log mmslam's debug messages", **keep
     )
     group.add_argument(
-        "-q", "--quiet", action="store_true", help="no progress, errors only", **keep
-    )
+        "-q", "--quiet", action="store_true",
+        help="errors only: no progress, no result lines (inspect still prints its report)",
+        **keep,
+    )  # fmt: skip
     return parent
 
 
@@ -545,9 +553,30 @@ def configure_logging(verbose: bool, quiet: bool) -> None:
         logging.getLogger(name).setLevel(level)
 
 
+def _stdout_gone() -> None:
+    """The reader of stdout has gone (`mmslam inspect LOG | head`): what is left to print goes
+    nowhere, so that neither we nor Python's exit complain about it."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    """The arguments; `--version` and `--help` print and exit here, a closed pipe quietly."""
+    try:
+        return build_parser().parse_args(argv)
+    except BrokenPipeError:
+        _stdout_gone()
+        raise SystemExit(0) from None
+    except SystemExit:
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _stdout_gone()
+        raise
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser().parse_args(argv)
+    args = _parse(argv)
     args.argv = argv
     configure_logging(args.verbose, args.quiet)
     try:
@@ -566,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"mmslam {args.command}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:  # `mmslam inspect LOG | head`: the reader has gone, nothing to say
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _stdout_gone()
         return 0
     except OSError as exc:  # a path the system refuses, a full disk
         message, status = describe_os_error(exc)

@@ -19,7 +19,7 @@ def ground_truth_tum(log: DetectionLog) -> str:
     """The ground-truth poses as TUM lines, stamped like the replay's `trajectory.tum`."""
     if not log.has_ground_truth:
         raise InputError("the log has no /ground_truth/pose messages")
-    stamps = np.asarray(log.pose_stamps_ns(), dtype=np.int64) / 1e9
+    stamps = log.pose_stamps_ns()
     poses = []
     for message in log.ground_truth_poses:
         pose = np.eye(4)

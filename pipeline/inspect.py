@@ -53,7 +53,7 @@ class _Counts:
 
 def inspect_log(path: str | Path) -> dict[str, Any]:
     """A report of the log; `valid` is False and `problem` the one-line reason when it is not."""
-    report: dict[str, Any] = {"path": str(path), "valid": False, "problem": None}
+    report: dict[str, Any] = {"path": str(path), "kind": "log", "valid": False, "problem": None}
     counts = _Counts()
     problem = None  # the first, in reading order: the one `replay` stops at
     try:
@@ -93,6 +93,12 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
     ]
     report["time_span_s"] = (max(stamps) - min(stamps)) / 1e9 if stamps else 0.0
     report["metadata"] = next((r for n, r in mcap.metadata if n == METADATA_NAME), None)
+    if validator is None:  # no log's metadata: perhaps mmslam's estimate for Foxglove
+        from pipeline.foxglove.replay_file import ESTIMATE_METADATA, summarise_estimate
+
+        if any(name == ESTIMATE_METADATA for name, _ in mcap.metadata):
+            report.update(kind="estimate", valid=True, estimate=summarise_estimate(path))
+            return report
     if problem is not None:
         report["problem"] = problem
         return report
@@ -119,12 +125,26 @@ def render_text(report: dict[str, Any]) -> str:
     if "topics" in report:
         lines.append(f"time span: {report['time_span_s']:.3f} s")
         lines.append("topics:")
+        width = max([28, *(len(topic) for topic in report["topics"])])
         for topic, info in report["topics"].items():
-            lines.append(f"  {topic:<28} {info['schema']:<28} {info['messages']:>7} messages")
+            lines.append(f"  {topic:<{width}} {info['schema']:<28} {info['messages']:>7} messages")
         if report.get("metadata"):
             lines.append("metadata:")
             lines += [f"  {k}: {v}" for k, v in sorted(report["metadata"].items())]
-    if report["valid"]:
+    if report["kind"] == "estimate":
+        e = report["estimate"]
+        lines += [
+            f"an estimate: `mmslam replay --mcap` with method {e['method']}, for Foxglove "
+            "beside its log (not a detection log: replay and the other commands read logs)",
+            f"poses: {e['poses']}",
+            f"landmarks: {e['landmarks']}",
+            f"keyframes with associations: {e['keyframes']}",
+            f"events: {e['switches']} switches, {e['null_wins']} null-hypothesis wins",
+        ]
+        if e["result"]:
+            lines.append(f"result: {e['result']}")
+        lines.append("valid: yes (an estimate)")
+    elif report["valid"]:
         lines.append(f"poses: {report['poses']}")
         lines.append(f"detections: {report['detections']}")
         for key in ("detections_by_source", "detections_by_class"):

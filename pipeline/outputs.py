@@ -62,13 +62,20 @@ def _step(name: str) -> None:
 # ------------------------------------------------------------------------------ formats
 
 
-def trajectory_tum(stamps_s: Iterable[float], poses: Iterable[np.ndarray]) -> str:
-    """evo's TUM format: `stamp tx ty tz qx qy qz qw`, a line a pose."""
+def stamp_text(stamp_ns: int) -> str:
+    """Integer nanoseconds as seconds with nine decimals, exactly: a float holds an epoch stamp
+    (1.4e18 ns) to about 0.2 µs only."""
+    seconds, nanoseconds = divmod(int(stamp_ns), 10**9)
+    return f"{seconds}.{nanoseconds:09d}"
+
+
+def trajectory_tum(stamps_ns: Iterable[int], poses: Iterable[np.ndarray]) -> str:
+    """evo's TUM format: `stamp tx ty tz qx qy qz qw`, a line a pose, the stamp in seconds."""
     lines = []
-    for stamp, T in zip(stamps_s, poses, strict=True):
+    for stamp, T in zip(stamps_ns, poses, strict=True):
         q = quaternion_from_rotation(T[:3, :3])
-        values = [stamp, *T[:3, 3], *q]
-        lines.append(" ".join(f"{v:.9f}" for v in values))
+        values = [*T[:3, 3], *q]
+        lines.append(" ".join([stamp_text(stamp), *(f"{v:.9f}" for v in values)]))
     return "\n".join(lines) + "\n"
 
 

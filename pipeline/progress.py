@@ -41,6 +41,7 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self.interval_s, self.clock = interval_s, clock
         self.done = 0
+        self.shown_done = 0  # the count the last line showed
         self.enabled = enabled
         self.started = self.last_line = clock()
         self.bar: Any = None
@@ -60,18 +61,25 @@ class Progress:
 
     def _line(self) -> None:
         now = self.clock()
-        self.last_line = now
+        self.last_line, self.shown_done = now, self.done
         line = progress_line(self.description, self.done, self.total, self.unit, now - self.started)
         self.stream.write(line + "\n")
         self.stream.flush()
 
     def close(self, completed: bool = True) -> None:
-        """Ends the bar; without a terminal, a last line if the work `completed` and lines were
-        shown before (a run short enough to show none stays quiet, so that an error found
-        after its loop is the one line it prints; after a failure the error is the last word)."""
+        """Ends the bar; without a terminal, a last line if the work `completed`, lines were
+        shown before and the last one did not show this count already (a run short enough to
+        show none stays quiet, so that an error found after its loop is the one line it prints;
+        after a failure the error is the last word)."""
         if self.bar is not None:
             self.bar.close()
-        elif self.enabled and self.done and completed and self.last_line > self.started:
+        elif (
+            self.enabled
+            and self.done
+            and completed
+            and self.last_line > self.started
+            and self.shown_done != self.done
+        ):
             self._line()
 
 

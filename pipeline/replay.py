@@ -192,7 +192,7 @@ def render_outputs(
     ]
     return {
         outputs.TRAJECTORY: outputs.trajectory_tum(
-            pose_stamps_s(log), [p.matrix() for p in result.poses]
+            log.pose_stamps_ns(), [p.matrix() for p in result.poses]
         ),
         outputs.LANDMARKS: outputs.landmarks_csv(landmark_rows),
         outputs.ASSOCIATIONS: outputs.associations_csv(association_rows),

@@ -77,8 +77,10 @@ def write_scene(
     meas_noise: float = 1.0,
     truth_ids: bool = True,
     ground_truth: bool = True,
+    start_ns: int = 1_000_000_000,
 ) -> Path:
-    """Write the scene as a contract-v1 log; noise scales 0 give exact measurements."""
+    """Write the scene as a contract-v1 log, its poses 0.1 s apart from `start_ns`; noise
+    scales 0 give exact measurements."""
     rng = np.random.default_rng(seed)
     C = scene.num_classes
     confusion = scene.confusion if scene.confusion is not None else np.eye(C)
@@ -93,7 +95,7 @@ def write_scene(
     by_pose: dict[int, list[int]] = {}
     for i, j in scene.visible():
         by_pose.setdefault(i, []).append(j)
-    stamp = lambda i: 1_000_000_000 + i * 100_000_000  # noqa: E731
+    stamp = lambda i: start_ns + i * 100_000_000  # noqa: E731
     with LogWriter(path, metadata) as w:
         if ground_truth:
             w.write(

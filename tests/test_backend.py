@@ -180,6 +180,19 @@ def test_class_posterior_follows_the_reports(tmp_path):
         assert landmark.map_class == j
 
 
+def test_known_takes_a_report_its_confusion_matrix_calls_impossible(tmp_path):
+    # A front-end log: the truth labels join a car boxed as a truck to the car, and the
+    # detector's confusion matrix (the identity) says that never happens.
+    poses = square_loop(8.0, 1.0, laps=0.25)
+    landmarks = np.array([[4.0, 3.0, 0.0], [6.0, -3.0, 0.0]])
+    scene = Scene(poses, landmarks, np.array([0, 1]), misreports={(2, 0), (3, 1)})
+    scene.sightings = [(i, j) for i in range(len(poses)) for j in range(2)]
+    log = write_scene(tmp_path / "impossible.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    backend = run_backend(log, "known")
+    for j, landmark in backend.landmarks.landmarks.items():
+        np.testing.assert_allclose(landmark.class_probabilities, np.eye(2)[j])
+
+
 @pytest.mark.e2e
 @pytest.mark.parametrize("method", ["gpda", "mm-nh", "dcsam"])
 def test_same_input_gives_byte_identical_outputs(tmp_path, square_scene, method):

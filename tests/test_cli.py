@@ -58,7 +58,7 @@ def assert_one_line_error(status: int, err: str, *needles: str) -> None:
 @pytest.mark.e2e
 def test_replay_writes_the_contract_outputs(tmp_path, good_log, capsys):
     status, out, _ = run_cli(
-        capsys, "replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "o"), "--quiet"
+        capsys, "replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "o")
     )
     assert status == 0 and "ml:" in out
     names = sorted(p.name for p in (tmp_path / "o").iterdir())
@@ -391,6 +391,54 @@ def test_ranges_in_the_help_are_enforced(tmp_path, capsys, args, needle):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize("args", [["--version"], ["--help"], ["sweep", "--help"]])
+def test_version_and_help_into_a_closed_pipe_say_nothing(args):
+    """`mmslam --version | true`: the reader is gone before anything is written."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    exe = os.path.join(os.path.dirname(sys.executable), "mmslam")
+    try:
+        proc = subprocess.run([exe, *args], stdout=write_end, stderr=subprocess.PIPE, text=True)
+    finally:
+        os.close(write_end)
+    assert (proc.returncode, proc.stderr) == (0, "")
+
+
+def test_quiet_commands_print_nothing(tmp_path, capsys, good_log):
+    """-q is errors only: no result lines on stdout, nothing on stderr."""
+    small = config_path("scenarios/small-indoor-tags.toml")
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(
+        f'scenario = "indoor-tags"\nscenario_config = "{small}"\nseeds = 1\n'
+        'methods = ["known"]\nodom_noise_scale = 1.0\nmisclassification = 0.0\n'
+    )
+    commands = [
+        ["simulate", "indoor-tags", "--out", str(tmp_path / "t.mcap"), "--config", str(small)],
+        ["replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "r")],
+        ["compare", str(good_log), "--methods", "known,ml", "--out", str(tmp_path / "c")],
+        ["export", str(good_log), "--ground-truth", str(tmp_path / "gt.tum")],
+        ["sweep", str(sweep), "--out", str(tmp_path / "s"), "--workers", "1"],
+    ]
+    for command in commands:
+        assert main([*command, "-q"]) == 0, command
+        assert capsys.readouterr() == ("", ""), command
+    assert main(["replay", str(good_log), "--method", "ml", "--out", str(tmp_path / "r")]) == 0
+    assert "ml:" in capsys.readouterr().out  # without -q, the result line
+
+
+def test_sweep_help_lists_only_sweeps(capsys):
+    from data_tools.sweep.config import load_sweep_config
+
+    with pytest.raises(SystemExit):
+        main(["sweep", "--help"])
+    listed = capsys.readouterr().out.split("built-in sweep:")[1].split("\n\n")[0]
+    names = builtin_sweeps()
+    assert "".join(listed.split()) == ",".join(names)  # argparse wraps lines at hyphens
+    assert "small" in names and "kitti05" in names
+    for name in names:  # a scenario's or a back-end's file among them is no sweep
+        load_sweep_config(config_path(f"sweeps/{name}.toml"))
+
+
 def test_sweeps_by_name(tmp_path, capsys):
     assert sweep_config("small") == config_path("sweeps/small.toml")
     assert "small" in builtin_sweeps() and "kitti05" in builtin_sweeps()
@@ -426,6 +474,19 @@ def test_export_gives_evo_the_ground_truth_and_evo_agrees_with_the_metrics(
     assert rows[0] == "id,x,y,z,class_id"
     assert rows[1:] == ["0,5.000000,3.000000,0.000000,0", "1,9.000000,-3.000000,0.000000,1",
                         "2,3.000000,9.000000,0.000000,0"]  # fmt: skip
+
+
+@pytest.mark.e2e
+def test_tum_files_keep_every_nanosecond_of_an_epoch_stamp(tmp_path, capsys):
+    # A EuRoC stamp: as a float in seconds it would be written 1403636579.763555527.
+    start = 1403636579763555584
+    scene = Scene(square_loop(6.0, 1.0, laps=0.25), np.array([[3.0, 2.0, 0.0]]), np.array([0]))
+    log = write_scene(tmp_path / "epoch.mcap", scene, start_ns=start)
+    assert main(["replay", str(log), "--method", "known", "--out", str(tmp_path / "r")]) == 0
+    assert main(["export", str(log), "--ground-truth", str(tmp_path / "gt.tum")]) == 0
+    for path in (tmp_path / "r" / "trajectory.tum", tmp_path / "gt.tum"):
+        stamps = [line.split()[0] for line in path.read_text().splitlines()]
+        assert stamps[:2] == ["1403636579.763555584", "1403636579.863555584"], path
 
 
 def test_export_without_ground_truth_exits_2_and_writes_nothing(tmp_path, capsys):

@@ -475,7 +475,7 @@ def test_decided_at_the_drifted_prediction_a_wrong_loop_closure_is_taken(tmp_pat
 
 
 def test_replay_dcsam_writes_valid_contract_outputs(tmp_path, capsys):
-    small = ROOT / "configs" / "sweeps" / "small-indoor-tags.toml"
+    small = ROOT / "configs" / "scenarios" / "small-indoor-tags.toml"
     log = tmp_path / "tags.mcap"
     args = ["simulate", "indoor-tags", "--out", str(log), "--seed", "1", "--config", str(small)]
     assert main([*args, "--odom-noise-scale", "2", "--misclassification", "0.1"]) == 0

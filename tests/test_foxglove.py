@@ -18,10 +18,12 @@ from mcap.reader import make_reader
 
 from data_tools.scenarios import simulate
 from pipeline import settings
+from pipeline.cli import main
 from pipeline.config import load_config
 from pipeline.foxglove import log_topics
 from pipeline.foxglove import messages as fm
 from pipeline.foxglove import replay_file as rf
+from pipeline.inspect import inspect_log
 from pipeline.log import Detection, read_log
 from pipeline.replay import replay
 from pipeline.viz import TeeSink, sink_from_options
@@ -230,7 +232,7 @@ def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
 
 
 @pytest.mark.e2e
-def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
+def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path, capsys):
     scene, _, _ = kidnap_scene(alias_seen_before=False)
     log_path = write_scene(tmp_path / "alias.mcap", scene, odom_noise=0.0, meas_noise=0.0)
     estimate = tmp_path / "estimate.mcap"
@@ -275,6 +277,38 @@ def test_replay_writes_the_estimate_with_null_wins_and_switches(tmp_path):
     assert any("switched from landmark" in e and "to the null hypothesis" in e for e in events)
     assert events[-1].startswith("mm-nh: translation error rmse")
     assert result.metrics["association"]["null"] == 1
+    switches = sum(" switched " in e or " moved off " in e for e in events)
+    assert switches == result.metrics["switches"]
+
+    # `mmslam inspect` says what the file is and sums it up
+    report = inspect_log(estimate)
+    assert (report["kind"], report["valid"]) == ("estimate", True)
+    assert report["estimate"] == {
+        "method": "mm-nh",
+        "poses": result.metrics["num_poses"],
+        "keyframes": len(fox[rf.ASSOCIATIONS]),
+        "landmarks": result.metrics["num_landmarks"],
+        "switches": result.metrics["switches"],
+        "null_wins": sum(e.endswith("left to the null hypothesis") for e in events),
+        "result": events[-1],
+    }
+    assert main(["inspect", str(estimate)]) == 0
+    assert "an estimate: `mmslam replay --mcap` with method mm-nh" in capsys.readouterr().out
+
+
+@pytest.mark.e2e
+def test_a_switch_in_the_detections_own_keyframe_is_an_event(tmp_path):
+    # The alias is first put on the lookalike at the drifted prediction; the keyframe's own
+    # update moves the pose and it switches to the alias, before any later keyframe.
+    scene, _, _ = kidnap_scene(alias_seen_before=True, shift=3.0)
+    log_path = write_scene(tmp_path / "switch.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    estimate = tmp_path / "estimate.mcap"
+    sink = sink_from_options(None, False, None, mcap=estimate)
+    result = replay(log_path, "mm", tmp_path / "run", load_config(), sink=sink, progress=False)
+    events = [m.message for _, m in read_foxglove(estimate)[rf.EVENTS]]
+    own = [e for e in events if "moved off its first choice" in e]
+    assert result.metrics["switches"] >= 1
+    assert len(own) == result.metrics["switches"], events
 
 
 @pytest.mark.e2e

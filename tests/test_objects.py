@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +23,7 @@ from pipeline.frontend import model_files
 from pipeline.frontend import objects as ob
 from pipeline.frontend.config import load_frontend_config
 from tests import real_data
+from tests.detector import installed
 
 # A small network with every layer kind of yolov3-tiny: batch-normed leaky convolutions, 2x2
 # maxpools of stride 2 and of stride 1, two yolo heads, a route back, an upsample and a route
@@ -407,15 +407,6 @@ KITTI_CAR_BOX = (734.0, 184.0, 906.0, 306.0)
 # yolov3-tiny scores that car 0.95 at the configured input (measured); the paper's threshold is
 # 0.8, and the test asks for 0.5 and a box on the car.
 CAR_THRESHOLD = 0.5
-
-
-def installed(path: Path) -> Path:
-    """The path, or a skip when the user chose not to install models, else a failure."""
-    if path.exists():
-        return path
-    if os.environ.get("MMSLAM_SKIP_MODELS") == "1":
-        pytest.skip(f"{path} absent: MMSLAM_SKIP_MODELS=1 (the user chose not to install models)")
-    pytest.fail(f"{path} absent: run `python -m data_tools.models install` (make test does)")
 
 
 @pytest.fixture(scope="module")

@@ -146,7 +146,7 @@ def test_ctrl_c_at_any_step_leaves_one_whole_set_and_nothing_else(tmp_path, smal
 @pytest.mark.parametrize("step", [1, 2])
 def test_simulate_killed_while_writing_its_log_leaves_the_old_log(tmp_path, step):
     log = tmp_path / "tags.mcap"
-    config = ROOT / "configs" / "sweeps" / "small-indoor-tags.toml"
+    config = ROOT / "configs" / "scenarios" / "small-indoor-tags.toml"
     args = ["simulate", "indoor-tags", "--out", str(log), "--config", str(config)]
     assert main([*args, "--seed", "1"]) == 0
     old = log.read_bytes()

@@ -37,6 +37,18 @@ def test_without_a_terminal_a_line_every_interval_and_at_the_end():
     assert "\r" not in stream.getvalue()
 
 
+def test_a_last_line_that_showed_the_end_is_not_repeated():
+    # `mmslam sweep`: its last run's update may print the last line itself.
+    stream, clock = io.StringIO(), FakeClock()
+    for _ in track(range(3), 3, "sweep", "run", stream=stream, interval_s=5, clock=clock):
+        clock.now += 6.0  # a line after every item, the last one's included
+    assert stream.getvalue().splitlines() == [
+        "sweep: 1/3 runs (33%), 6 s",
+        "sweep: 2/3 runs (66%), 12 s",
+        "sweep: 3/3 runs (100%), 18 s",
+    ]
+
+
 def test_disabled_progress_prints_nothing():
     stream, clock = io.StringIO(), FakeClock()
     shown = Progress(4, "quiet", enabled=False, stream=stream, interval_s=0, clock=clock)

@@ -38,10 +38,11 @@ TYPED_FILES = {
     "renderer/demo.toml": RendererConfig,
     "renderer/kitti-size.toml": RendererConfig,
     "renderer/corridor.toml": RendererConfig,
-    "sweeps/indoor-tags-backend.toml": Config,
+    "tag-poses.toml": Config,
     "scenarios/indoor-tags.toml": IndoorTagsConfig,
     "scenarios/city-grid.toml": CityGridConfig,
     "scenarios/city-grid-world3.toml": CityGridConfig,
+    "scenarios/small-indoor-tags.toml": IndoorTagsConfig,
     "scenarios/kitti05-cars.toml": Kitti05CarsConfig,
     "scenarios/planar-park.toml": PlanarParkConfig,
 }

@@ -26,7 +26,7 @@ from pipeline.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "configs" / "sweeps"
-SMALL_SCENARIO = SWEEPS / "small-indoor-tags.toml"
+SMALL_SCENARIO = ROOT / "configs" / "scenarios" / "small-indoor-tags.toml"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 # 3 cells (the base, noise 0, misclassification 30 %) x 1 seed x 3 methods = 9 short runs.
@@ -235,7 +235,7 @@ def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, t
     out = tmp_path / "out"
     shutil.copytree(first, out)
     config = write(tmp_path, TINY.split("[[axes]]")[0])  # the base cell of the same set-up
-    args = ["sweep", str(config), "--out", str(out), "--workers", "1", "-q"]
+    args = ["sweep", str(config), "--out", str(out), "--workers", "1"]  # no -q: its result lines
     assert cli_main([*args, "--seeds", "2"]) == 0
     printed = capsys.readouterr().out.splitlines()
     assert printed[0].startswith("sweep tiny: 6 runs (3 new, 3 kept)")

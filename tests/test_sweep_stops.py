@@ -58,9 +58,10 @@ def wait_for(condition, what: str):
     return result
 
 
-def sweep_command(config: Path, out: Path) -> list[str]:
+def sweep_command(config: Path, out: Path, quiet: bool = True) -> list[str]:
+    """The sweep as a user starts it; `quiet`: errors only (-q), no result lines either."""
     return [sys.executable, "-m", "pipeline.cli", "sweep", str(config), "--out", str(out),
-            "--workers", "2", "--quiet"]  # fmt: skip
+            "--workers", "2", *(["--quiet"] if quiet else [])]  # fmt: skip
 
 
 def start_sweep(folder: Path) -> tuple[subprocess.Popen, Path]:
@@ -104,7 +105,7 @@ def test_a_stopped_sweep_takes_its_workers_with_it_and_resumes(tmp_path, how):
     assert 1 <= len(kept) < 9
     # The next sweep cleans what the stopped one left, keeps its finished runs and does the rest.
     done = subprocess.run(
-        sweep_command(tmp_path / "sweep.toml", out),
+        sweep_command(tmp_path / "sweep.toml", out, quiet=False),  # its result line
         cwd=ROOT,
         capture_output=True,
         text=True,

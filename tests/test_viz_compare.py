@@ -17,8 +17,8 @@ from pipeline.backend.methods import METHODS as ALL_METHODS
 from pipeline.cli import main
 from pipeline.compare import compare
 from pipeline.viz import entities as e
-from pipeline.viz.comparison import METHOD_COLOURS, SUMMARY, moved_path, run_root
-from pipeline.viz.draw import WRONG_RGB, packed_rgba
+from pipeline.viz.comparison import LEGEND_ROOT, METHOD_COLOURS, SUMMARY, moved_path, run_root
+from pipeline.viz.draw import WRONG_RGB, class_colors, packed_rgba
 from pipeline.viz.stream import rerun_executable
 from tests.recordings import (
     blueprint,
@@ -70,7 +70,7 @@ def test_every_run_is_under_its_own_root_on_the_same_timeline(compared):
     roots = {path.split("/")[2] for path in rows if path.startswith("/runs/")}
     assert roots == set(METHODS)
     outside = {p for p in rows if not p.startswith(("/runs/", "/__properties"))}
-    assert outside == {SUMMARY}
+    assert outside == {SUMMARY, LEGEND_ROOT, LEGEND_ROOT + "/lines", LEGEND_ROOT + "/marks"}
     for result in results:
         root = run_root(result.method)
         # the final estimate drawn is the one the run's folder holds
@@ -80,8 +80,8 @@ def test_every_run_is_under_its_own_root_on_the_same_timeline(compared):
         # the robot at every pose of the log's timeline
         robot = data_rows(rows[root + e.ROBOT], "Transform3D:translation")
         assert [r["pose"] for r in robot] == list(range(result.num_poses))
-        # its own legend in its map
-        assert latest(rows[root + e.LEGEND_MARKS], "Points3D:labels")
+        # no legend of its own: one beside the maps names what every run drew
+        assert root + e.LEGEND_MARKS not in rows and root + e.LEGEND_LINES not in rows
         # the plotted lines named and coloured by method
         rgb, _ = METHOD_COLOURS[result.method]
         for path in (e.LANDMARK_COUNT, e.NULL_RATE, e.WRONG_COUNT, e.ERROR_ONLINE):
@@ -92,25 +92,34 @@ def test_every_run_is_under_its_own_root_on_the_same_timeline(compared):
         assert rows[f"/__properties/{result.method}"][0]["method"] == [result.method]
 
 
-def test_the_maps_side_by_side_and_a_line_a_method_in_each_plot(compared):
-    tmp, _ = compared
+def test_the_maps_side_by_side_one_legend_and_a_line_a_method_in_each_plot(compared):
+    tmp, results = compared
     rrd = tmp / "all.rrd"
     views = blueprint(rrd)
-    maps = {v.id: v for v in views if v.kind == "3D"}
-    (row,) = [c for c in containers(rrd) if set(c) == set(maps)]  # side by side, in order
-    maps = [maps[i] for i in row]
+    spatial = {v.id: v for v in views if v.kind == "3D"}
+    (row,) = [c for c in containers(rrd) if set(c) == set(spatial)]  # side by side, in order
+    *maps, key = [spatial[i] for i in row]
     assert [v.origin for v in maps] == [run_root(m) + e.WORLD for m in METHODS]
     for view, method in zip(maps, METHODS, strict=True):
         assert view.name.startswith(method)
-        assert view.shows(run_root(method) + e.LEGEND_MARKS)  # kept when maximised
         assert not view.shows(run_root("ml" if method != "ml" else "known") + e.TRAJECTORY)
+    assert (key.name, key.origin) == ("Legend", LEGEND_ROOT)
+    # the legend names what any run drew: known weighs no candidates, the others do
+    rows = read_rows(rrd)
+    named = latest(rows[LEGEND_ROOT + "/lines"], "LineStrips3D:labels")
+    named += latest(rows[LEGEND_ROOT + "/marks"], "Points3D:labels")
+    assert {"estimate", "ground truth", "odometry alone", "robot", "other candidate"} <= set(named)
+    assert ("switch" in named) == any(r.metrics["switches"] for r in results)
+    assert ("merge" in named) == any(r.metrics["merges"] for r in results)
     plots = [v for v in views if v.kind == "TimeSeries"]
     # errors newest and final, wrong, landmarks, null rate, time, switches, merges
     assert len(plots) == 8
     for view in plots:
         lines = [q.removeprefix("+ ") for q in view.query]
+        # known, the reference, first: drawn beneath the others
         assert [line.split("/")[2] for line in lines] == METHODS
         assert len({line.split("/", 3)[3] for line in lines}) == 1  # the same metric
+        assert view.properties["PlotLegend"]["PlotLegend:visible"] == [True]
     assert unfed_views(rrd) == []
     assert unseen_entities(rrd) == []
 
@@ -126,8 +135,15 @@ def test_the_table_of_results(compared):
         rmse = result.metrics["translation_error_m"]["rmse"]
         assert float(cells[1]) == pytest.approx(rmse, abs=5e-4)
         association = result.metrics["association"]
-        assert [int(c) for c in cells[2:4]] == [association["wrong"], association["null"]]
-        assert int(cells[4]) == result.num_landmarks
+        assert float(cells[2]) == pytest.approx(
+            result.metrics["translation_error_m"]["max"], abs=5e-4
+        )
+        assert [int(c) for c in cells[3:6]] == [
+            association["wrong"],
+            association["null"],
+            association["correct"],
+        ]
+        assert int(cells[6]) == result.num_landmarks
 
 
 @pytest.mark.skipif(rerun_executable() is None, reason="no rerun executable")
@@ -152,7 +168,7 @@ def test_a_failed_run_writes_no_recording(tmp_path, capsys):
     log_path = small_log(tmp_path / "log.mcap", truth_ids=False)
     target = tmp_path / "all.rrd"
     status = main(["compare", str(log_path), "--methods", "ml,known", "--out",
-                   str(tmp_path / "runs"), "--rrd", str(target)])  # fmt: skip
+                   str(tmp_path / "runs"), "--rrd", str(target), "-q"])  # fmt: skip
     err = capsys.readouterr().err
     assert status == 2 and "truth_landmark_id" in err and len(err.strip().splitlines()) == 1
     assert not target.exists()
@@ -175,11 +191,14 @@ def test_where_a_run_entity_goes():
     assert moved_path("/__properties/run", "ml") == "/__properties/ml"
     assert moved_path("/__properties", "ml") is None  # the comparison names itself
     assert moved_path(e.VIZ_MS, "ml") is None  # what recording cost: nothing of the method
+    assert moved_path(e.LEGEND_MARKS, "ml") is None  # the comparison has one legend
 
 
-def test_every_method_has_a_colour_of_its_own_and_none_is_red():
+def test_every_method_has_a_colour_of_its_own_none_red_nor_a_class_colour():
     assert set(METHOD_COLOURS) == set(ALL_METHODS)
     colours = [rgb for rgb, _ in METHOD_COLOURS.values()]
     names = [name for _, name in METHOD_COLOURS.values()]
     assert len(set(colours)) == len(colours) and len(set(names)) == len(names)
     assert WRONG_RGB not in colours
+    classes = {tuple(int(v) for v in rgb) for rgb in class_colors(len(ALL_METHODS) + 4)}
+    assert not classes & set(colours)

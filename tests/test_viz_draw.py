@@ -113,6 +113,55 @@ def test_the_map_is_laid_out_round_what_the_detections_saw():
     assert frame.seen_points(np.zeros(0, int), np.zeros((0, 3)), poses).shape == (0, 3)
 
 
+def test_the_map_is_framed_on_the_truth_not_on_drifting_odometry(tmp_path):
+    from pipeline.log import read_log
+    from tests.synthetic import Scene, square_loop, write_scene
+
+    landmarks = np.array([[5.0, 3.0, 0.0], [9.0, -3.0, 0.0]])
+    scene = Scene(square_loop(10.0, 1.0), landmarks, np.array([0, 1]))
+    log = read_log(write_scene(tmp_path / "drift.mcap", scene, seed=3, odom_noise=30.0))
+    framed = frame.replay_frame(log, 1.5)
+    truth_box = np.ptp(np.vstack([framed.truth, landmarks]), axis=0)
+    np.testing.assert_allclose(np.ptp(framed.map_extent, axis=0), truth_box)
+    low, high = np.min(framed.map_extent, axis=0), np.max(framed.map_extent, axis=0)
+    outside = np.any(
+        (framed.odometry[:, :2] < low[:2] - 1.0) | (framed.odometry[:, :2] > high[:2] + 1.0), axis=1
+    )
+    assert outside.any()  # the odometry drifts out of the frame
+    # without ground truth, the odometry is all there is to frame
+    log = read_log(write_scene(tmp_path / "bare.mcap", scene, seed=3, odom_noise=30.0,
+                               ground_truth=False))  # fmt: skip
+    framed = frame.replay_frame(log, 1.5)
+    assert np.all(np.ptp(framed.map_extent, axis=0) >= np.ptp(framed.odometry, axis=0) - 1e-9)
+
+
+def test_the_legend_names_what_a_run_drew():
+    hypotheses = [
+        [draw.Hypothesis(0, 4, 0.9, True, False), draw.Hypothesis(0, 5, 0.1, False, False)],
+        [draw.Hypothesis(1, NULL, 0.6, True, False)],
+        [draw.Hypothesis(2, 7, 1.0, True, True)],
+    ]
+    drawn = legend.drawn_marks(hypotheses)
+    assert drawn == {legend.CHOSEN, legend.OTHER, legend.NULL, legend.NEW}
+    wrong = [[draw.Hypothesis(0, 4, 0.9, True, False, wrong=True)]]
+    assert legend.drawn_marks(wrong) == {legend.WRONG}
+    items = legend.replay_legend(["car", "truck"], ground_truth=True, truth_labels=True)
+    shown = [i.label for i in legend.drawn_items(items, drawn | {"truck"})]
+    assert shown == [
+        "truck", "estimate", "ground truth", "odometry alone", "robot", "chosen",
+        "new landmark", "other candidate", "null hypothesis",
+    ]  # fmt: skip
+
+
+def test_the_robot_is_marked_to_be_seen_at_the_default_eye():
+    from pipeline.viz import marks
+
+    (_, dot), (_, arrow) = marks.robot_marks(200.0)
+    assert arrow.vectors.as_arrow_array().to_pylist() == [[10.0, 0.0, 0.0]]  # 5 % of the view
+    positions = dot.positions.as_arrow_array().to_pylist()
+    assert positions[0][2] == pytest.approx(4.0) and positions[1][2] < positions[0][2]
+
+
 def test_labels_that_would_cover_others_are_left_out():
     box = (4.0, 1.0)  # a label 4 m wide, 1 m high
     anchors = np.array([[0.0, 0.0], [3.0, 0.5], [0.0, 1.5], [10.0, 0.0], [3.9, -0.9]])
@@ -226,21 +275,21 @@ def test_the_table_of_a_comparison():
     Run = namedtuple("Run", "method num_landmarks runtime_s metrics")
     rows = [Run("ml", 553, 2.84, METRICS), Run("mm-nh", 265, 49.46, None)]
     assert comparison_markdown(rows).splitlines() == [
-        "| method | RMSE (m) | wrong | null | landmarks | correct | max (m) | back-end (s) |",
+        "| method | RMSE (m) | max (m) | wrong | null | correct | landmarks | time (s) |",
         "|---|---|---|---|---|---|---|---|",
-        "| **ml** | 6.603 | 8 | 13 | 553 | 686 | 18.578 | 2.8 |",
-        "| **mm-nh** | – | – | – | 265 | – | – | 49.5 |",
+        "| **ml** | 6.603 | 18.578 | 8 | 13 | 686 | 553 | 2.8 |",
+        "| **mm-nh** | – | – | – | – | – | 265 | 49.5 |",
     ]
     # without ground truth: what every run has
     for metrics in (None, COUNTS_ONLY):
         assert comparison_markdown([Run("ml", 9, 1.0, metrics)]).splitlines() == [
-            "| method | landmarks | back-end (s) |",
+            "| method | landmarks | time (s) |",
             "|---|---|---|",
             "| **ml** | 9 | 1.0 |",
         ]
     # ground-truth poses, no truth labels: errors without association counts
     assert comparison_markdown([Run("ml", 9, 1.0, {**COUNTS_ONLY, **ERRORS})]).splitlines() == [
-        "| method | RMSE (m) | landmarks | max (m) | back-end (s) |",
+        "| method | RMSE (m) | max (m) | landmarks | time (s) |",
         "|---|---|---|---|---|",
-        "| **ml** | 6.603 | 9 | 18.578 | 1.0 |",
+        "| **ml** | 6.603 | 18.578 | 9 | 1.0 |",
     ]

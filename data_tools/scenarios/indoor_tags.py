@@ -63,6 +63,7 @@ from data_tools.scenarios.noise import (
 )
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.errors import InputError
+from pipeline.frontend.classes import tag_class_names
 from pipeline.log import Detection, GroundTruthLandmark, RelativePose
 from pipeline.settings import within
 
@@ -330,10 +331,6 @@ def visible_tags(
 # --- the run --------------------------------------------------------------------------------
 
 
-def class_names(num_classes: int) -> list[str]:
-    return [f"tag-id-mod-{num_classes}-is-{c}" for c in range(num_classes)]
-
-
 def simulate(
     config: IndoorTagsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
@@ -415,7 +412,7 @@ def simulate(
         metadata=metadata_for(
             num_classes,
             confusion,
-            class_names(num_classes),
+            tag_class_names(num_classes),
             source_text(NAME, options, config_path),
         ),
     )

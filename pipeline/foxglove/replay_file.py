@@ -13,7 +13,8 @@ that opens beside the log (both use the frame `world`, pose 0's body frame).
   the metrics at the end.
 
 The final estimate is known only at the end, so the file is written by `finish`, under a
-temporary name renamed into place.
+temporary name renamed into place. Its metadata record `mmslam.estimate` names the method;
+`summarise_estimate` reads a file back (`mmslam inspect`).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ PATH = "/foxglove/estimate/path"
 LANDMARKS = "/foxglove/estimate/landmarks"
 ASSOCIATIONS = "/foxglove/estimate/associations"
 EVENTS = "/foxglove/estimate/events"
+ESTIMATE_METADATA = "mmslam.estimate"  # the file's metadata record: {"method": ...}
 
 
 def landmark_label(landmark_id: int, class_name: str, probability: float) -> str:
@@ -69,23 +71,28 @@ class FoxgloveSink:
         self.method = method
 
     def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
-        """Null wins and switches, told as they happen (the records change later)."""
+        """Null wins and switches, told as they happen (the records change later): every
+        switch the back-end counts, an earlier detection's or one of this keyframe's own,
+        moved off its first choice by the keyframe's update (that choice is not kept)."""
         stamp = self.stamps[report.pose_index]
         for record in report.switched:
             m = record.measurement
             key = (m.pose_index, m.detection_index)
             previous = self._winners.get(key)
             self._winners[key] = record.landmark_id
-            if previous is not None:
-                self.events.append(
-                    (
-                        stamp,
-                        f"pose {report.pose_index}: detection {m.detection_index} of pose "
-                        f"{m.pose_index} switched from {self._name(previous)} to "
-                        f"{self._name(record.landmark_id)}",
-                        True,
-                    )
+            switched = (
+                f"switched from {self._name(previous)} to"
+                if previous is not None
+                else "moved off its first choice by this keyframe's update, to"
+            )
+            self.events.append(
+                (
+                    stamp,
+                    f"pose {report.pose_index}: detection {m.detection_index} of pose "
+                    f"{m.pose_index} {switched} {self._name(record.landmark_id)}",
+                    True,
                 )
+            )
         for record in report.records:
             m = record.measurement
             self._winners[(m.pose_index, m.detection_index)] = record.landmark_id
@@ -109,7 +116,7 @@ class FoxgloveSink:
         with AtomicFile(self.path) as out:
             writer = mcap_writer(out.file)
             writer.start(profile="", library="mmslam")
-            writer.add_metadata("mmslam.estimate", {"method": self.method})
+            writer.add_metadata(ESTIMATE_METADATA, {"method": self.method})
             channels = FoxgloveChannels(writer)
             for stamp, topic, message in messages:
                 channels.write(topic, stamp, message)
@@ -190,3 +197,52 @@ def metrics_summary(method: str, metrics: dict) -> str | None:
         a = metrics["association"]
         parts.append(f"associations {a['correct']} correct, {a['wrong']} wrong, {a['null']} null")
     return f"{method}: " + "; ".join(parts) if parts else None
+
+
+def summarise_estimate(path: str | Path) -> dict[str, Any]:
+    """What an estimate file written by `FoxgloveSink` holds: the method, the poses, the
+    landmarks, the keyframes with associations, the switches and null-hypothesis wins told as
+    events, and the closing summary (errors and association counts, where the log had truth).
+    Messages are decoded with the schemas the file carries."""
+    from mcap.reader import make_reader
+
+    counted = {POSE: "poses", ASSOCIATIONS: "keyframes"}
+    summary: dict[str, Any] = {"method": None, "poses": 0, "keyframes": 0, "landmarks": 0}
+    summary.update(switches=0, null_wins=0, result=None)
+    classes: dict[int, Any] = {}
+    last_event = None
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        for record in reader.iter_metadata():
+            if record.name == ESTIMATE_METADATA:
+                summary["method"] = record.metadata.get("method")
+        topics = [POSE, ASSOCIATIONS, LANDMARKS, EVENTS]
+        for schema, channel, message in reader.iter_messages(topics=topics):
+            if channel.topic in counted:
+                summary[counted[channel.topic]] += 1
+                continue
+            if schema is None:
+                continue
+            if schema.id not in classes:
+                classes[schema.id] = _protobuf_class(schema.name, schema.data)
+            decoded = classes[schema.id].FromString(message.data)
+            if channel.topic == LANDMARKS:
+                summary["landmarks"] += len(decoded.entities)
+                continue
+            text = decoded.message
+            summary["switches"] += " switched " in text or " moved off " in text
+            summary["null_wins"] += text.endswith("left to the null hypothesis")
+            last_event = text
+    if last_event is not None and last_event.startswith(f"{summary['method']}:"):
+        summary["result"] = last_event
+    return summary
+
+
+def _protobuf_class(name: str, file_descriptor_set: bytes) -> Any:
+    """The message class of `name` built from an MCAP schema's FileDescriptorSet."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    pool = descriptor_pool.DescriptorPool()
+    for file in descriptor_pb2.FileDescriptorSet.FromString(file_descriptor_set).file:
+        pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))

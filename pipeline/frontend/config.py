@@ -126,6 +126,7 @@ class ObjectDetectorConfig:
     """`[objects]`: the object-box stage (pipeline/frontend/objects.py)."""
 
     enabled: bool
+    require_model: bool  # False: without the model, a note and no boxes; True: an error
     model: str  # a bare file name is looked up in the models directory
     class_names_file: str
     input_size: tuple[InputSide, InputSide]

@@ -146,17 +146,18 @@ def box_iou(a: tuple[float, ...], b: tuple[float, ...]) -> float:
 
 def box_truth_id(
     bbox: tuple[float, float, float, float],
-    class_name: str,
     landmarks: list[TruthLandmark],
     body0_from_body: np.ndarray,
     intrinsics: StereoIntrinsics,
     min_iou: float,
 ) -> int:
-    """The box landmark of this class whose projection overlaps `bbox` most (IoU >= min_iou),
-    or -1. Occlusion is not modelled: the nearest of two overlapping boxes is not preferred."""
+    """The box landmark whose projection overlaps `bbox` most (IoU >= min_iou), or -1. Whatever
+    class the detector reported: the truth is the object seen, and a misclassified detection
+    (a car boxed as a truck) still sees it. Occlusion is not modelled: the nearest of two
+    overlapping boxes is not preferred."""
     best_id, best_iou = -1, min_iou
     for lm in landmarks:
-        if lm.kind != "box" or lm.class_name != class_name:
+        if lm.kind != "box":
             continue
         projected = projected_box(box_corners(lm), body0_from_body, intrinsics)
         if projected is None:

@@ -2,8 +2,8 @@
 
 Stages, each with its own progress bar: visual odometry over every frame (it chooses the
 keyframes, which are the log's poses), AprilTags at the keyframes, object boxes at the keyframes
-(when configured), then the log. The stages know nothing of each other; this module only runs
-them and writes what they give.
+(wherever the detector model is installed), then the log. The stages know nothing of each
+other; this module only runs them and writes what they give.
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from pipeline.datasets.layouts import SequenceOptions, open_sequence
 from pipeline.datasets.stereo import StereoSequence
 from pipeline.errors import InputError
 from pipeline.frontend.apriltags import AprilTagDetector, tag_detection
+from pipeline.frontend.classes import tag_class_names
 from pipeline.frontend.config import FrontendConfig, OutputConfig, load_frontend_config
 from pipeline.frontend.geometry import camera_point_measurement, quaternion_from_rotation
 from pipeline.frontend.ground_truth import (
@@ -68,6 +69,7 @@ class FrontendSummary:
     vo_lost: int  # keyframes whose motion is a constant-velocity guess
     stage_seconds: dict[str, float] = field(default_factory=dict)
     unpaired_frames: int = 0  # left or right frames without a partner, left out
+    object_boxes: bool = True  # whether the object-box stage ran
 
     def summary_line(self) -> str:
         stages = ", ".join(f"{name} {s:.1f} s" for name, s in self.stage_seconds.items())
@@ -76,9 +78,14 @@ class FrontendSummary:
             if self.unpaired_frames
             else ""
         )
+        boxes = (
+            f"{self.num_box_detections} box detections"
+            if self.object_boxes
+            else "no box detections (object boxes off)"
+        )
         return (
             f"{self.out}: {self.num_poses} poses from {self.num_frames} frames, "
-            f"{self.num_tag_detections} tag and {self.num_box_detections} box detections, "
+            f"{self.num_tag_detections} tag and {boxes}, "
             f"{self.vo_lost} odometry losses{unpaired} ({stages})"
         )
 
@@ -145,13 +152,28 @@ def run_apriltags(
     return per_keyframe
 
 
+def boxes_wanted(config: FrontendConfig) -> bool:
+    """Whether the object-box stage runs: `[objects] enabled`, and its model installed (or
+    `require_model`, which makes a missing model an error)."""
+    objects = config.objects
+    return objects.enabled and (objects.require_model or objects.model_path.is_file())
+
+
 def make_object_stage(config: FrontendConfig) -> ObjectStage | None:
-    """The object-box stage if `[objects] enabled`; imported only then (it loads a model)."""
-    if not config.objects.enabled:
+    """The object-box stage where `boxes_wanted` (enabled without its model: a note, no
+    stage); imported only then (it loads a model)."""
+    objects = config.objects
+    if not boxes_wanted(config):
+        if objects.enabled:
+            log.warning(
+                "object boxes off: no detector model at %s; `make models` (or `python -m "
+                "data_tools.models install`) installs yolov3-tiny there",
+                objects.model_path,
+            )
         return None
     from pipeline.frontend.objects import ObjectDetector
 
-    return ObjectDetector(config.objects)
+    return ObjectDetector(objects)
 
 
 def run_objects(
@@ -174,7 +196,6 @@ def run_objects(
             if truth is not None and body_poses is not None:
                 truth_id = box_truth_id(
                     tuple(record.bbox),
-                    stage.class_names[record.class_id],
                     truth,
                     body_poses[frame],
                     sequence.intrinsics,
@@ -212,7 +233,7 @@ def class_metadata(
     block-diagonal: tags as configured, objects as the stage says (identity if it says
     nothing)."""
     count = config.classes.num_classes
-    names = [f"tag_mod{count}_{k}" for k in range(count)]
+    names = tag_class_names(count)
     diagonal = config.classes.tag_confusion_diagonal
     off = (1.0 - diagonal) / (count - 1) if count > 1 else 0.0
     blocks = [np.full((count, count), off) + np.eye(count) * (diagonal - off)]
@@ -376,7 +397,7 @@ def run_frontend(
     options = SequenceOptions(
         config.input.stereo_stamp_tolerance, left_topic, right_topic, calibration
     )
-    sequence = open_sequence(sequence_dir, config.objects.enabled, options)
+    sequence = open_sequence(sequence_dir, boxes_wanted(config), options)
     if len(sequence) < 2:
         raise InputError(f"sequence {sequence_dir}: needs at least two frames")
     stamps_ns(sequence)  # refuse bad times before the work
@@ -449,8 +470,8 @@ def run_frontend(
         vo_lost=keyframes.lost,
         stage_seconds=seconds,
         unpaired_frames=sequence.unmatched_left + sequence.unmatched_right,
+        object_boxes=object_stage is not None,
     )
-    log.info("%s", summary.summary_line())
     return summary
 
 

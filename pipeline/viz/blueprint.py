@@ -49,14 +49,14 @@ def plot_time(window: int) -> dict:
     }
 
 
-def plot_view(plot: Plot, window: int) -> rrb.TimeSeriesView:
-    """A plot's view: its lines, no legend (the title names them), over the whole run or a
-    following window."""
+def plot_view(plot: Plot, window: int, legend: bool = False) -> rrb.TimeSeriesView:
+    """A plot's view: its lines, over the whole run or a following window; a legend in its
+    top left corner with `legend` (else the title names the lines)."""
     return rrb.TimeSeriesView(
         name=plot.name,
         origin="/",
         contents=[f"+ {p}" for p in plot.paths],
-        plot_legend=rrb.PlotLegend(visible=False),
+        plot_legend=rrb.PlotLegend(rrb.Corner2D.LeftTop, visible=legend),
         **plot_time(window),
     )
 
@@ -98,6 +98,17 @@ def map_view(
     )
 
 
+def legend_view(name: str, origin: str, extent: np.ndarray, aspect: float) -> rrb.Spatial3DView:
+    """A view of a legend's board alone (`extent`: its corners), from above, without a grid."""
+    position, target = draw.top_down_eye(extent, aspect, EYE_TILT)
+    eye = rrb.EyeControls3D(
+        kind="Orbital", position=position, look_target=target, eye_up=(0.0, 0.0, 1.0)
+    )
+    return rrb.Spatial3DView(
+        name=name, origin=origin, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False)
+    )
+
+
 def events_view(name: str, origin: str, contents: list[str] | None = None) -> rrb.TextLogView:
     """An event log; with `contents` (several runs' logs), each line names its entity."""
     return rrb.TextLogView(
@@ -123,9 +134,12 @@ def panels() -> list:
 
 
 def series_styles(plots: list[Plot]) -> list[tuple[str, rr.SeriesLines]]:
-    """(entity, its line's name and colour) for every line of these plots: logged static."""
+    """(entity, its line's name, colour and width) for every line of these plots: logged
+    static."""
     return [
-        (s.path, rr.SeriesLines(names=s.name, colors=s.rgb)) for plot in plots for s in plot.series
+        (s.path, rr.SeriesLines(names=s.name, colors=s.rgb, widths=s.width))
+        for plot in plots
+        for s in plot.series
     ]
 
 

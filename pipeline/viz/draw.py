@@ -39,10 +39,13 @@ _PALETTE = np.array(
     dtype=np.uint8,
 )
 
-# Trajectories: the estimate bright, ground truth grey (its landmarks too), odometry yellow.
+# Trajectories: the estimate bright, ground truth grey (its landmarks too), odometry a dim
+# yellow (it drifts across the whole map: in full yellow it hid the estimate). The robot's
+# pose: a bright yellow dot and arrow.
 ESTIMATE_RGB = (245, 245, 245)
 TRUTH_RGB = (125, 125, 125)
-ODOMETRY_RGB = (235, 205, 50)
+ODOMETRY_RGB = (150, 135, 60)
+ROBOT_RGB = (255, 220, 0)
 
 # Hypothesis lines: the winner stands out, losers are thin and bluish grey, the null hypothesis
 # violet; switches magenta. Red is kept for what is wrong: an association whose landmark

@@ -7,6 +7,8 @@ WORLD = "/world"
 # The newest pose (Transform3D + axes); its children are in the body frame.
 ROBOT = "/world/robot"
 ROBOT_DETECTIONS = "/world/robot/detections"  # front-end: a keyframe's detections, body frame
+ROBOT_MARKER = "/world/robot/marker"  # a dot at the pose, a fixed size on screen
+ROBOT_HEADING = "/world/robot/heading"  # an arrow along the body's x axis
 
 TRAJECTORY = "/world/trajectory/estimate"  # all poses as of the last refresh
 TRAJECTORY_RECENT = "/world/trajectory/recent"  # the poses since then, every keyframe

@@ -1,6 +1,8 @@
 """What a replay's map is laid out around, from the log alone: the reference trajectories the
 estimate is shown against (ground truth aligned at pose 0, odometry alone), the legend below
-them, and every point the default eye must see. Pure; read by a run's sink and by the layout of
+them, and every point the default eye must see: the true path and landmarks where the log has
+them (odometry alone drifts far from them: framed on it, the map was a small part of its view),
+else the odometry and what its detections saw. Pure; read by a run's sink and by the layout of
 a comparison of runs, whose maps must match the runs'."""
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class MapFrame:
     items: list[legend.LegendItem]
     board: legend.Board
     extent: np.ndarray  # (M, 3): what the default eye must see, the legend included
+    map_extent: np.ndarray  # (K, 3): the map alone (a layout with the legend elsewhere)
 
     @property
     def ground_truth(self) -> bool:
@@ -63,8 +66,8 @@ def seen_points(
 
 def replay_frame(log: DetectionLog, aspect: float) -> MapFrame:
     """The map of a replay of `log`, in a view of this `aspect` (width / height): the legend
-    below everything the run may draw (the reference trajectories, the true landmarks, what
-    the detections saw)."""
+    below the map, the default eye on both. The map: the true trajectory and landmarks where
+    the log has them, else odometry alone and what the detections saw from it."""
     alignment = draw.ground_truth_alignment(log.ground_truth_poses)
     dead_reckoned = draw.dead_reckoning_poses(log.odometry)
     odometry = dead_reckoned[:, :3, 3]
@@ -80,12 +83,17 @@ def replay_frame(log: DetectionLog, aspect: float) -> MapFrame:
         d.truth_landmark_id is not None for m in log.detections for d in m.detections
     )
     items = legend.replay_legend(log.metadata.class_names, alignment is not None, truth_labels)
-    detections = [(m.pose_index, d) for m in log.detections for d in m.detections]
-    seen = seen_points(
-        np.array([i for i, _ in detections], dtype=int),
-        np.array([(d.bearing, d.elevation, d.range) for _, d in detections]).reshape(-1, 3),
-        dead_reckoned,
-    )
-    reference = np.vstack([odometry, truth, true_landmarks, seen])
+    if alignment is not None:
+        reference = np.vstack([truth, true_landmarks])
+    else:
+        detections = [(m.pose_index, d) for m in log.detections for d in m.detections]
+        seen = seen_points(
+            np.array([i for i, _ in detections], dtype=int),
+            np.array([(d.bearing, d.elevation, d.range) for _, d in detections]).reshape(-1, 3),
+            dead_reckoned,
+        )
+        reference = np.vstack([odometry, seen])
     board, extent = board_below(reference, items, aspect)
-    return MapFrame(alignment, indices, truth, odometry, truth_labels, items, board, extent)
+    return MapFrame(
+        alignment, indices, truth, odometry, truth_labels, items, board, extent, reference
+    )

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.backend.hypotheses import NULL as NULL_ID
 from pipeline.viz import draw
 
 # A board row (a swatch and its label) is this share of the map view's height.
@@ -41,27 +42,55 @@ def class_legend(class_names: Sequence[str]) -> list[LegendItem]:
     ]
 
 
+# The marks of the association step: a run may draw some of them never (known weighs no
+# candidates; a run without merges draws none), and it may map no landmark of a class. The
+# legend names those it drew, and always these.
+CHOSEN, NEW, OTHER, WRONG = "chosen", "new landmark", "other candidate", "wrong association"
+NULL, SWITCH, MERGE = "null hypothesis", "switch", "merge"
+ALWAYS = ("estimate", "ground truth", "odometry alone", "robot", "visual odometry")
+
+
 def replay_legend(
     class_names: Sequence[str], ground_truth: bool, truth_labels: bool = False
 ) -> list[LegendItem]:
-    """The landmark classes, the trajectories, and the marks of the association step.
-    `ground_truth`: the log has a true trajectory; `truth_labels`: its detections name their
-    true landmark, so wrong associations are drawn."""
+    """The landmark classes, the trajectories, the robot, and the marks of the association
+    step. `ground_truth`: the log has a true trajectory; `truth_labels`: its detections name
+    their true landmark, so wrong associations are drawn."""
     truth = [LegendItem("ground truth", draw.TRUTH_RGB, True)] if ground_truth else []
-    wrong = [LegendItem("wrong association", draw.WRONG_RGB, True)] if truth_labels else []
+    wrong = [LegendItem(WRONG, draw.WRONG_RGB, True)] if truth_labels else []
     return [
         *class_legend(class_names),
         LegendItem("estimate", draw.ESTIMATE_RGB, True),
         *truth,
         LegendItem("odometry alone", draw.ODOMETRY_RGB, True),
-        LegendItem("chosen", draw.WINNER_RGB, True),
-        LegendItem("new landmark", draw.NEW_LANDMARK_RGB, True),
-        LegendItem("other candidate", draw.LOSER_RGB, True),
+        LegendItem("robot", draw.ROBOT_RGB, False),
+        LegendItem(CHOSEN, draw.WINNER_RGB, True),
+        LegendItem(NEW, draw.NEW_LANDMARK_RGB, True),
+        LegendItem(OTHER, draw.LOSER_RGB, True),
         *wrong,
-        LegendItem("null hypothesis", draw.NULL_WINNER_RGB, False),
-        LegendItem("switch", draw.SWITCH_RGB, True),
-        LegendItem("merge", draw.MERGE_RGB, True),
+        LegendItem(NULL, draw.NULL_WINNER_RGB, False),
+        LegendItem(SWITCH, draw.SWITCH_RGB, True),
+        LegendItem(MERGE, draw.MERGE_RGB, True),
     ]
+
+
+def drawn_marks(hypotheses: Sequence[Sequence[draw.Hypothesis]]) -> set[str]:
+    """The association marks a keyframe's hypothesis lines draw."""
+    drawn = set()
+    for h in (h for hs in hypotheses for h in hs):
+        if h.landmark_id == NULL_ID:
+            drawn.add(NULL if h.winner else OTHER)
+        elif h.winner:
+            drawn.add(WRONG if h.wrong else NEW if h.new_landmark else CHOSEN)
+        else:
+            drawn.add(OTHER)
+    return drawn
+
+
+def drawn_items(items: Sequence[LegendItem], drawn: set[str]) -> list[LegendItem]:
+    """The legend of a run that drew `drawn` (association marks, the classes of its
+    landmarks): the trajectories and the robot, and of the rest what it drew."""
+    return [item for item in items if item.label in ALWAYS or item.label in drawn]
 
 
 def frontend_legend(class_names: Sequence[str]) -> list[LegendItem]:

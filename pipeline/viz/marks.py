@@ -17,17 +17,44 @@ from pipeline.viz.legend import Board, LegendItem
 # How far below a wrongly associated landmark its red ring is drawn (m): behind the landmark's
 # own dot from above, near enough to stay round it.
 RING_DEPTH_M = 0.1
+# The robot's heading arrow, as a share of the height of map the default eye shows: seen at
+# that eye whatever the map's size (its axes, a metre long, are a few pixels on a city). The
+# marker floats this share above the pose, in front of the landmarks around it from above.
+HEADING_SHARE = 0.05
+LIFT_SHARE = 0.02
+OUTLINE_RGB = (15, 15, 15)
+
+
+def robot_marks(shown_height_m: float) -> list[tuple[str, object]]:
+    """(entity, archetype) of the robot's marker, in its body frame: a yellow dot a fixed size
+    on screen, outlined in black, and an arrow along x that the default eye sees."""
+    lift = np.array([0.0, 0.0, LIFT_SHARE * shown_height_m])
+    colour = draw.packed_rgba(draw.ROBOT_RGB)
+    dot = rr.Points3D(
+        [lift, 0.9 * lift],  # the outline just behind the dot, seen from above
+        colors=[colour, draw.packed_rgba(OUTLINE_RGB)],
+        radii=[rr.Radius.ui_points(8.0), rr.Radius.ui_points(11.0)],
+        labels=["robot", "robot"],
+        show_labels=False,
+    )
+    arrow = rr.Arrows3D(
+        origins=[lift],
+        vectors=[[HEADING_SHARE * shown_height_m, 0.0, 0.0]],
+        colors=colour[None],
+        radii=rr.Radius.ui_points(3.0),
+    )
+    return [(e.ROBOT_MARKER, dot), (e.ROBOT_HEADING, arrow)]
 
 
 def legend_swatches(items: Sequence[LegendItem], board: Board) -> list[tuple[str, object]]:
     """(entity, archetype) of the legend's swatches, each labelled: a short line for lines, a
-    dot for marks."""
+    dot for marks. The items take the board's places in order (fewer items than places leave
+    its last places empty)."""
     half = np.array([board.half_line, 0.0, 0.0])
     out: list[tuple[str, object]] = []
+    places = board.centres[: len(items)]
     for line in (True, False):
-        chosen = [
-            (c, item) for c, item in zip(board.centres, items, strict=True) if item.line == line
-        ]
+        chosen = [(c, item) for c, item in zip(places, items, strict=True) if item.line == line]
         if not chosen:
             continue
         style = {

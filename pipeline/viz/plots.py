@@ -1,8 +1,9 @@
 """The time series a recording plots: each plot's title and lines (entity, name, colour), read
 by the sink that styles the lines and by the blueprint that lays the plots out. No Rerun here.
 
-Plots carry no legend of their own (over a whole run it covers the tops of the lines): a plot
-of one line says what it is in its title, a plot of several names their colours there.
+A replay's plots carry no legend of their own (over a whole run it covers the tops of the
+lines): a plot of one line says what it is in its title, a plot of several names their colours
+there. A comparison's plots, a line a method, have a legend (`comparison.py`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ class Series:
     name: str
     rgb: tuple[int, int, int]
     colour: str  # the colour in words, for the plot's title
+    width: float | None = None  # the line's width (UI points); None: the viewer's
 
 
 @dataclass(frozen=True)

@@ -104,6 +104,9 @@ class RecordingBase:
             ),
             static=True,
         )
+        for path, mark in marks.robot_marks(board.shown_height):
+            self.rec.log(path, mark, static=True)
+        self._legend_items, self._board = legend_items, board
         for path, swatches in marks.legend_swatches(legend_items, board):
             self.rec.log(path, swatches, static=True)
         for path, style in series_styles(plot_list):

@@ -29,7 +29,7 @@ from gtsam.symbol_shorthand import L
 
 from pipeline.backend.hypotheses import NULL
 from pipeline.log.schemas import LEFT_IMAGE
-from pipeline.viz import draw, events, legend, plots
+from pipeline.viz import draw, events, legend, marks, plots
 from pipeline.viz import entities as e
 from pipeline.viz.blueprint import (
     FRONTEND_MAP_ASPECT,
@@ -90,6 +90,7 @@ class RerunSink(MapView, ImageView, RecordingBase):
         self._viz_ms: list[float] = []
         self._tally: AssociationTally | None = None  # where the log names true landmarks
         self._label_box = (0.0, 0.0)  # a label's size in the map (m) at the default eye
+        self._drawn: set[str] = set()  # the association marks drawn so far (for the legend)
 
     # ----------------------------------------------------------------------------------- open
     @classmethod
@@ -145,7 +146,7 @@ class RerunSink(MapView, ImageView, RecordingBase):
         )
         self.rec.log(
             e.ODOMETRY_TRAJECTORY,
-            self._trajectory(odometry, draw.ODOMETRY_RGB, "odometry alone", width=1.5),
+            self._trajectory(odometry, draw.ODOMETRY_RGB, "odometry alone", width=1.0),
             static=True,
         )
         if alignment is not None:
@@ -240,6 +241,9 @@ class RerunSink(MapView, ImageView, RecordingBase):
             self._log_landmark(backend.landmarks, j, points[j], covariance, unless_unchanged=True)
 
         self._log_hypotheses(report.records, hypotheses, row, points, backend.landmarks)
+        self._drawn |= legend.drawn_marks(hypotheses)
+        self._drawn |= {legend.SWITCH} if report.switched else set()
+        self._drawn |= {legend.MERGE} if report.merged else set()
         self._log_associations(report, poses, points)
         self._log_merges(report.merged, merged_from, points, backend.landmarks.resolve)
         self._log_image(i, [(r.measurement.detection, r.landmark_id) for r in report.records])
@@ -310,6 +314,16 @@ class RerunSink(MapView, ImageView, RecordingBase):
         state = self._state(last, len(result.landmark_ids), result.switches)
         text = summary_markdown(state, metrics)
         self.rec.log(e.SUMMARY, rr.TextDocument(text, media_type="text/markdown"))
+        # The legend again (static: it replaces the first), naming only the marks drawn and
+        # the classes mapped.
+        if self._tally is not None and self._tally.counts()[WRONG]:
+            self._drawn.add(legend.WRONG)
+        if rejected:
+            self._drawn.add(legend.NULL)
+        self._drawn |= {self._class_names[s.class_id] for s in self._landmarks.values()}
+        shown = legend.drawn_items(self._legend_items, self._drawn)
+        for path, swatches in marks.legend_swatches(shown, self._board):
+            self.rec.log(path, swatches, static=True)
         self._finished = True
 
     # ------------------------------------------------------------------------------- frontend

@@ -63,10 +63,10 @@ def summary_markdown(state: RunState, metrics: dict[str, Any] | None = None) -> 
 
 def comparison_markdown(results: Sequence[Any]) -> str:
     """A table of several runs of one log (`pipeline.replay.ReplayResult`s), a row a method:
-    the error where the log has ground-truth poses, the associations where it has truth
-    labels, landmarks, time; what tells methods apart first (a narrow view cuts the last
-    columns). metrics.json holds the errors and the association counts only where the log
-    has what they are measured against."""
+    the error (RMSE, max) where the log has ground-truth poses, the associations where it
+    has truth labels, landmarks, the back-end's time; what tells methods apart first (a
+    narrow view cuts the last columns). metrics.json holds the errors and the association
+    counts only where the log has what they are measured against."""
 
     def of(r: Any, key: str) -> dict[str, Any] | None:
         return (r.metrics or {}).get(key)
@@ -75,26 +75,16 @@ def comparison_markdown(results: Sequence[Any]) -> str:
     associations = any(of(r, "association") for r in results)
     head, rule = "| method |", "|---|"
     if errors:
-        head, rule = head + " RMSE (m) |", rule + "---|"
+        head, rule = head + " RMSE (m) | max (m) |", rule + "---|---|"
     if associations:
-        head, rule = head + " wrong | null |", rule + "---|---|"
-    head, rule = head + " landmarks |", rule + "---|"
-    if associations:
-        head, rule = head + " correct |", rule + "---|"
-    if errors:
-        head, rule = head + " max (m) |", rule + "---|"
-    lines = [head + " back-end (s) |", rule + "---|"]
+        head, rule = head + " wrong | null | correct |", rule + "---|---|---|"
+    lines = [head + " landmarks | time (s) |", rule + "---|---|"]
     for r in results:
         t, a = of(r, "translation_error_m"), of(r, "association")
         row = f"| **{r.method}** |"
         if errors:
-            row += f" {t['rmse']:.3f} |" if t else " – |"
+            row += f" {t['rmse']:.3f} | {t['max']:.3f} |" if t else " – | – |"
         if associations:
-            row += f" {a['wrong']} | {a['null']} |" if a else " – | – |"
-        row += f" {r.num_landmarks} |"
-        if associations:
-            row += f" {a['correct']} |" if a else " – |"
-        if errors:
-            row += f" {t['max']:.3f} |" if t else " – |"
-        lines.append(row + f" {r.runtime_s:.1f} |")
+            row += f" {a['wrong']} | {a['null']} | {a['correct']} |" if a else " – | – | – |"
+        lines.append(row + f" {r.num_landmarks} | {r.runtime_s:.1f} |")
     return "\n".join(lines)

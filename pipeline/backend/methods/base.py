@@ -118,10 +118,14 @@ class BackendContext:
         # The association weights already hold each landmark's semantic likelihood; dividing
         # it out leaves the rest of the association's evidence, so that the report is counted
         # once: evidence(c) = (w_k / s_k) P(report | c) + (the other associations' weight).
+        # A report the confusion matrix makes impossible for a landmark (s = 0: possible only
+        # where the association was not weighed, as known's truth labels decide it) adds no
+        # evidence for any of its classes.
         total = float(weights.sum()) + null_weight
         for lm, w, s in zip(lms, weights, semantic, strict=True):
+            weight = float(w) / float(s) if s > 0 else 0.0
             lm.class_probabilities = class_posterior_update(
-                lm.class_probabilities, column, float(w) / float(s), total - float(w)
+                lm.class_probabilities, column, weight, total - float(w)
             )
 
     def estimates(self, prediction: PosePrediction | None = None) -> EstimateCache:

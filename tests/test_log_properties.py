@@ -31,6 +31,7 @@ from pipeline.log.messages import (
     StereoCalibration,
 )
 from pipeline.log.validate import LogValidator
+from pipeline.settings import SHOWN_CHARS
 from tests.sequences import assert_same
 
 NUM_CLASSES = 3
@@ -284,7 +285,7 @@ def test_a_non_finite_number_is_named_as_such(msg, constant):
 def test_a_bad_value_is_shown_cut_short():
     assert codec.shown("x" * 10) == repr("x" * 10)
     long = codec.shown("y" * 1000)
-    assert len(long) == codec.SHOWN_CHARS and long.endswith("...")
+    assert len(long) == SHOWN_CHARS and long.endswith("...")
 
 
 # --- the validator over message sequences ----------------------------------------------------

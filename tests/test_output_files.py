@@ -19,7 +19,8 @@ from pipeline.errors import InputError
 
 def test_a_trajectory_reads_back_in_tum_order_to_the_nanometre():
     rng = np.random.default_rng(3)
-    stamps = 1.7e9 + np.cumsum(rng.uniform(0.05, 0.2, 5))
+    # integer nanoseconds since the epoch, as a log's stamps are: each written exactly
+    stamps = 1_700_000_000_000_000_000 + np.cumsum(rng.integers(50_000_000, 200_000_000, 5))
     poses = []
     for _ in stamps:
         T = np.eye(4)
@@ -29,8 +30,9 @@ def test_a_trajectory_reads_back_in_tum_order_to_the_nanometre():
     rows = [line.split() for line in outputs.trajectory_tum(stamps, poses).splitlines()]
     assert len(rows) == len(poses)
     for row, stamp, T in zip(rows, stamps, poses, strict=True):
+        seconds, fraction = row[0].split(".")
+        assert int(seconds) * 10**9 + int(fraction.ljust(9, "0")) == stamp
         values = np.array([float(v) for v in row])
-        assert values[0] == pytest.approx(stamp, abs=1e-6)
         np.testing.assert_allclose(values[1:4], T[:3, 3], atol=1e-8)
         q = values[4:]  # qx qy qz qw, as scipy gives them (up to sign)
         expected = Rotation.from_matrix(T[:3, :3]).as_quat()

@@ -105,15 +105,13 @@ def moved_chunks(
     labels: dict[str, set[str]] = {}
     for chunk in rerun_chunk.RrdReader(recording).stream():
         if chunk.entity_path in (e.LEGEND_LINES, e.LEGEND_MARKS):  # static: the last one holds
+            # a chunk may hold the legend as first logged (every item) and as it ended: the
+            # last row is the one a static entity shows
             columns = chunk.to_record_batch().to_pydict()
-            labels[chunk.entity_path] = {
-                label
-                for column, values in columns.items()
-                if column.endswith(":labels")
-                for row in values
-                if row
-                for label in row
-            }
+            for column, values in columns.items():
+                rows = [row for row in values if row]
+                if column.endswith(":labels") and rows:
+                    labels[chunk.entity_path] = set(rows[-1])
         path = moved_path(chunk.entity_path, method)
         if path is not None:
             yield chunk.with_entity_path(path)

@@ -242,7 +242,9 @@ class RerunSink(MapView, ImageView, RecordingBase):
 
         self._log_hypotheses(report.records, hypotheses, row, points, backend.landmarks)
         self._drawn |= legend.drawn_marks(hypotheses)
-        self._drawn |= {legend.SWITCH} if report.switched else set()
+        # a switch is drawn for an earlier keyframe's detection only (`map_view`)
+        earlier = any(r.measurement.pose_index != report.pose_index for r in report.switched)
+        self._drawn |= {legend.SWITCH} if earlier else set()
         self._drawn |= {legend.MERGE} if report.merged else set()
         self._log_associations(report, poses, points)
         self._log_merges(report.merged, merged_from, points, backend.landmarks.resolve)

@@ -283,9 +283,9 @@ def test_an_understated_odometry_is_found_and_reweighted(
     within a factor 4 of the true one, odom_noise^2."""
     log = three_laps(tmp_path, square_scene, odom_noise, seed)
     backend = run_backend(log, "mm-nh", drift_config(long_drift_window=long_window))
-    scale = backend.noise.odometry
+    scale = backend.noise.scales.odometry
     if odom_noise == 1.0:
-        assert backend.odometry_moves == [] and scale == pytest.approx(1.0, rel=1e-12)
+        assert backend.noise.odometry_moves == [] and scale == pytest.approx(1.0, rel=1e-12)
     else:
         assert odom_noise**2 / 4 <= scale <= 4 * odom_noise**2
         assert_moves_lead_from_to(backend, 1.0, scale)
@@ -294,14 +294,14 @@ def test_an_understated_odometry_is_found_and_reweighted(
     metrics = compute_metrics(read_log(log), backend.result(), "mm-nh", 0.0)
     reported = metrics["noise_scales"]["odometry_moves"]
     assert [(m["pose_index"], m["from"], m["to"]) for m in reported] == [
-        (m.pose_index, m.before, m.after) for m in backend.odometry_moves
+        (m.pose_index, m.before, m.after) for m in backend.noise.odometry_moves
     ]
 
 
 def assert_moves_lead_from_to(backend: Backend, start: float, end: float) -> None:
     """The recorded odometry scale moves: a chain from `start` to `end`, each at an update
     keyframe after the last, each with at least the evidence the config asks for."""
-    moves, n = backend.odometry_moves, backend.config.noise
+    moves, n = backend.noise.odometry_moves, backend.config.noise
     assert moves and moves[0].before == start and moves[-1].after == end
     assert all(a.after == b.before for a, b in itertools.pairwise(moves))
     assert all(m.pose_index % n.update_every == 0 for m in moves)
@@ -316,7 +316,7 @@ def test_an_overstated_start_comes_down_to_what_the_windows_say(tmp_path, square
     scale down, not below the log's own statement, and every odometry factor follows."""
     log = three_laps(tmp_path, square_scene, odom_noise=1.0)
     backend = run_backend(log, "mm-nh", drift_config(odometry_start_scale=16.0))
-    scale = backend.noise.odometry
+    scale = backend.noise.scales.odometry
     assert 1.0 <= scale <= 16.0 / 3.0
     assert_moves_lead_from_to(backend, 16.0, scale)
     assert_every_odometry_factor_at(backend, scale)

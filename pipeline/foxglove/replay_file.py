@@ -32,7 +32,7 @@ from pipeline.log.writer import mcap_writer
 from pipeline.outputs import AtomicFile
 
 if TYPE_CHECKING:
-    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.backend.slam import BackendResult, KeyframeReport
     from pipeline.log.messages import DetectionLog
 
 ESTIMATE = "estimate"
@@ -68,7 +68,7 @@ class FoxgloveSink:
         self.class_names = log.metadata.class_names
         self.method = method
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None:
         """Null wins and switches, told as they happen (the records change later)."""
         stamp = self.stamps[report.pose_index]
         for record in report.switched:

@@ -131,19 +131,10 @@ def compute_metrics(
         "nulls": sum(j < 0 for j in chosen),
         "switches": result.switches,
         "merges": result.merges,
+        # the scales the replay ended with, per direction, and every move with its evidence
         "noise_scales": {
-            "odometry": result.noise.odometry,
-            "measurement": list(result.noise.measurement),
-            "odometry_moves": [
-                {
-                    "pose_index": m.pose_index,
-                    "from": m.before,
-                    "to": m.after,
-                    "evidence_nats": round(m.evidence, 3),
-                    "source": m.source,
-                }
-                for m in result.odometry_moves
-            ],
+            **result.noise.report(),
+            "moves": [move.report() for move in result.noise_moves],
         },
         **({"loop_drift": result.loop_drift} if result.loop_drift is not None else {}),
     }

@@ -56,7 +56,6 @@ def options(ids, offsets, weights) -> Candidates:
         residuals=residuals,
         pose_jacobians=np.broadcast_to(H_POSE, (k, 3, 6)).copy(),
         landmark_jacobians=np.broadcast_to(np.eye(3), (k, 3, 3)).copy(),
-        innovation_covariances=np.broadcast_to(np.eye(3) * R_ALONE, (k, 3, 3)).copy(),
     )
 
 

@@ -13,10 +13,12 @@ from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_pa
 from data_tools.scenarios.common import (
     SimulationOptions,
     SimulationSummary,
+    restated,
     summarise,
     write_log,
 )
 from data_tools.scenarios.config import MAX_NOISE_SCALE
+from data_tools.stated_noise import StatedNoise
 from pipeline.errors import InputError
 
 _MODULES = {
@@ -47,6 +49,7 @@ def simulate(
     true_covariance: bool = False,
     config_path: Path | None = None,
     foxglove: bool = True,
+    stated: StatedNoise | None = None,
 ) -> SimulationSummary:
     """Write the log of `scenario` to `out` (atomically) and return what it holds.
 
@@ -54,8 +57,9 @@ def simulate(
     `odom_noise_scale` multiplies the paper's added odometry noise (default: the config's);
     `misclassification` is the detector's alpha (1 - alpha on the confusion matrix's diagonal);
     `num_classes` defaults to the config's; `true_covariance` writes the odometry covariance
-    of the noise actually drawn instead of the calibrated model's; `foxglove` adds Foxglove's
-    well-known messages beside the contract's.
+    of the noise actually drawn instead of the calibrated model's; `stated` scales what the
+    log states beyond that, per direction (`data_tools.stated_noise`); `foxglove` adds
+    Foxglove's well-known messages beside the contract's.
     """
     if scenario not in _MODULES:
         raise InputError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
@@ -82,8 +86,9 @@ def simulate(
         misclassification=alpha,
         num_classes=classes,
         true_covariance=bool(true_covariance),
+        stated=stated or StatedNoise(),
     )
-    run = module.simulate(config, options, config_path)
+    run = restated(module.simulate(config, options, config_path), options.stated)
     out = Path(out)
     write_log(out, run, foxglove)
     return summarise(scenario, out, options, run)

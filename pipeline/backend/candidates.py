@@ -67,7 +67,6 @@ class Candidates:
     residuals: np.ndarray | None = None
     pose_jacobians: np.ndarray | None = None
     landmark_jacobians: np.ndarray | None = None
-    innovation_covariances: np.ndarray | None = None  # R of each candidate
 
     @staticmethod
     def none(searched: int = 0) -> Candidates:
@@ -431,7 +430,6 @@ class CandidateScorer:
             residuals=s.residual[kept] if self.keep_joint else None,
             pose_jacobians=s.H_x[kept] if self.keep_joint else None,
             landmark_jacobians=s.H_l[kept] if self.keep_joint else None,
-            innovation_covariances=R[keep] if self.keep_joint else None,
         )
 
     @staticmethod

@@ -216,16 +216,13 @@ class MergeFinder:
         """The landmark's marginal covariance, or an upper bound on it (`covariance_bound`)."""
         return covariance_bound(self.context.solver, self.context.landmarks, landmark_id)
 
-    def find(
-        self, pose_index: int, prediction: PosePrediction, odometry_scale: float = 1.0
-    ) -> list[tuple[int, int]]:
+    def find(self, pose_index: int, prediction: PosePrediction) -> list[tuple[int, int]]:
         """(duplicate, survivor) pairs to merge now, at the keyframe predicted by `prediction`
-        (where the sensor looks from). The map's covariance holds the odometry's
-        at `odometry_scale` times the log's; a loop's test weighs a larger drift by what the
-        loops closed so far say (`DriftScaleBelief`), up to `max_drift_scale` times the
-        log's, and what it closes is added to that."""
+        (where the sensor looks from). A loop's test weighs a drift larger than the map's
+        covariance holds by what the loops closed so far say (`DriftScaleBelief`), up to
+        `max_drift_scale` times it, and what it closes is added to that."""
         c = self.config
-        drift_scales = self.drift_belief.relative(odometry_scale)
+        drift_scales = self.drift_belief.scales, self.drift_belief.log_weights
         widest = float(np.max(drift_scales[0]))
         candidates = self.candidate_pairs(pose_index, widest)
         if not candidates:
@@ -317,6 +314,6 @@ class MergeFinder:
             )
             closed = [pair_set.pairs.index(pair) for pair in to_merge]
             if any(pair_set.loop[p] for p in closed):  # what this loop says of the drift
-                self.drift_belief.observe(odometry_scale, pair_set.scale_log_likelihoods(closed)[0])
+                self.drift_belief.observe(pair_set.scale_log_likelihoods(closed)[0])
             merged += to_merge
         return merged

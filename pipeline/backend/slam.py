@@ -26,7 +26,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, Keyframe, make_method
-from pipeline.backend.noise import NoiseLearner, NoiseScales, OdometryScaleMove
+from pipeline.backend.noise import NoiseLearner, NoiseMove, NoiseScales
 from pipeline.backend.planar import planar_prior_factors
 from pipeline.backend.solver import Isam2Solver, SolverFallback, fallback_counts
 from pipeline.backend.view import ReadOnlyMap
@@ -66,7 +66,7 @@ class BackendResult:
     switches: int = 0
     merges: int = 0
     noise: NoiseScales | None = None  # the noise scales at the end
-    odometry_moves: list[OdometryScaleMove] = field(default_factory=list)  # in order
+    noise_moves: list[NoiseMove] = field(default_factory=list)  # in order
     # what the loops closed by merges said of the odometry's scale (`DriftScaleBelief.report`)
     loop_drift: dict | None = None
     solver_fallbacks: dict[str, int] = field(default_factory=dict)  # by kind
@@ -101,9 +101,8 @@ class Backend:
             else None
         )
         # Only a method that associates keyframes jointly sees the sure pairings that tell the
-        # measurement noise: it alone learns the noise.
+        # detections' noise: it alone learns the noise.
         self.noise = NoiseLearner(config.noise, self.method.wants_joint)
-        self.context.innovations = self.noise.innovations
         self.records: list[AssociationRecord] = []
         # (handle, odometry) of each pose's odometry factor, while its scale may change
         self._odometry: list[tuple[int, Odometry]] = []
@@ -178,6 +177,7 @@ class Backend:
     def associate(self, keyframe: Keyframe) -> list[AssociationRecord]:
         """The method's factors for the keyframe's detections, pending in iSAM2."""
         records = self.method.associate_keyframe(keyframe)
+        self.noise.observe_keyframe(keyframe, records, self.context.last_seen)
         for r in records:
             self.context.register(r)
             self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
@@ -196,25 +196,28 @@ class Backend:
         pose_index = prediction.pose_index
         if self.merger is None or pose_index % self.config.merges.every_keyframes:
             return []
-        merged = self.merger.find(pose_index, prediction, self.noise.scales.odometry)
+        merged = self.merger.find(pose_index, prediction)
         for duplicate, survivor in merged:
             self.method.merge(survivor, duplicate)
         self.merges += len(merged)
         return merged
 
     def learn_noise(self, pose_index: int) -> bool:
-        """The noise scales learnt anew; whether the odometry's moved (every odometry factor is
-        then reweighted, pending: the graph is to be solved anew)."""
-        loops = None if self.merger is None else self.merger.drift_belief
-        if not self.noise.learn(pose_index, self.solver, loops):
-            return False
-        for k, (handle, odometry) in enumerate(self._odometry):
-            self.solver.remove(handle)
-            self._odometry[k] = (self._add_odometry(k, odometry)[0], odometry)
-        # The whole map's uncertainty changes with it: the landmarks' bounds are forgotten.
-        for landmark in self.landmarks.landmarks.values():
-            landmark.covariance_bound = None
-        return True
+        """The noise scales learnt anew; whether they moved (every factor of a kind that moved
+        is then reweighted, pending: the graph is to be solved anew)."""
+        change = self.noise.learn(pose_index, self.solver)
+        if change.odometry:
+            for k, (handle, odometry) in enumerate(self._odometry):
+                self.solver.remove(handle)
+                self._odometry[k] = (self._add_odometry(k, odometry)[0], odometry)
+            if self.merger is not None:  # the loops said how far the old map was off
+                self.merger.drift_belief.restart()
+        if change.measurement:
+            self.method.restate(self.records, self.noise.scales.measurement_matrix())
+        if change:  # the whole map's uncertainty changes: the landmarks' bounds are forgotten
+            for landmark in self.landmarks.landmarks.values():
+                landmark.covariance_bound = None
+        return bool(change)
 
     def report(
         self,
@@ -291,7 +294,7 @@ class Backend:
             switches=self.switches,
             merges=self.merges,
             noise=self.noise.scales,
-            odometry_moves=self.noise.odometry_moves,
+            noise_moves=self.noise.moves,
             loop_drift=None if self.merger is None else self.merger.drift_belief.report(),
             solver_fallbacks=fallback_counts(self.solver.fallbacks),
         )

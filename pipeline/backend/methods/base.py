@@ -17,7 +17,6 @@ from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.movement import MovementTracker, is_landmark_key, key_index
-from pipeline.backend.noise import ScaleEstimator
 from pipeline.backend.solver import Isam2Solver, movement_thresholds
 from pipeline.config import Config
 
@@ -53,14 +52,10 @@ class BackendContext:
     changed: set[int] = field(init=False, default_factory=set)
     # Where each kind of detection falls: where a landmark not mapped yet could be.
     space: dict[LandmarkKind, MeasurementSpace] = field(init=False)
-    # Sure pairings' innovations, for the noise scales (`noise.py`): point detections only.
-    innovations: ScaleEstimator = field(init=False)
 
     def __post_init__(self) -> None:
         self.movement = MovementTracker(movement_thresholds(self.config.isam2))
         self.space = {kind: MeasurementSpace() for kind in LandmarkKind}
-        n = self.config.noise
-        self.innovations = ScaleEstimator(3, n.window, n.min_pairings, (n.min_scale, n.max_scale))
 
     def register(self, record: AssociationRecord) -> None:
         """Index a new record by the landmarks it may be; the one it is was seen now."""
@@ -207,6 +202,12 @@ class AssociationMethod(ABC):
     def merge(self, survivor: int, duplicate: int) -> None:
         """Make `duplicate` one with `survivor` (for a method that `merges_landmarks`)."""
         raise NotImplementedError(f"{self.name} does not merge landmarks")
+
+    def restate(self, records: list[AssociationRecord], scale: np.ndarray) -> None:
+        """Every factor of `records` again with the detections' covariance at `scale` (the
+        noise scales learnt: `noise.NoiseScales.measurement_matrix`), pending in the solver;
+        for a method that `wants_joint`, the one that learns the noise."""
+        raise NotImplementedError(f"{self.name} does not learn the noise")
 
     def single(self, m: Measurement, landmark_id: int, weight: float = 1.0) -> AssociationRecord:
         """A plain association: one factor to one landmark."""

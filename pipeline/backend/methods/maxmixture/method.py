@@ -28,7 +28,7 @@ from pipeline.backend.decisions import (
 )
 from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
 from pipeline.backend.landmarks import LandmarkKind
-from pipeline.backend.measurements import Measurement
+from pipeline.backend.measurements import Measurement, make_measurement
 from pipeline.backend.methods.base import BackendContext, Keyframe, MixtureMethod
 from pipeline.backend.methods.maxmixture.joint_association import (
     NONE,
@@ -147,10 +147,20 @@ class MaxMixture(MixtureMethod):
             record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=k)
             record.handles = [self.context.add_factor(m, ids[k])]
             records.append(self.track(record))
-            if m.kind is LandmarkKind.POINT:  # a sure pairing: its innovation tells the noise
-                R = c.innovation_covariances[k]
-                self.context.innovations.add(c.residuals[k], R - m.covariance, m.covariance)
         return records
+
+    def restate(self, records: list[AssociationRecord], scale: np.ndarray) -> None:
+        """Each record's detection at the detections' noise `scale`, its one factor (the
+        active component's) swapped for one at that noise."""
+        use_pose = self.config.landmarks.use_relative_pose
+        for record in records:
+            m = record.measurement
+            record.measurement = make_measurement(
+                m.pose_index, m.detection_index, m.detection, use_pose, scale
+            )
+            if record.handles:
+                self.context.remove_factors(record)
+                record.handles = [self.context.add_factor(record.measurement, record.landmark_id)]
 
     def _null_log_density(self, m: Measurement) -> float:
         """A point detection's null: a new landmark or clutter, anywhere in the measurement

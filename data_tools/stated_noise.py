@@ -29,6 +29,9 @@ from pipeline.log.validate import LogValidator
 
 DETECTION_COMPONENTS = ("bearing", "elevation", "range")
 ALL = "all"
+# The directions a sweep's axis states wrong: each alone, or all of the odometry's or of the
+# detections' (`stated_noise_of`).
+STATED_DIRECTIONS = (*ODOMETRY_AXES, "odometry", *DETECTION_COMPONENTS, "detections")
 # Factors further from 1 than this are no misstatement but a unit error.
 MAX_FACTOR = 1e4
 
@@ -75,6 +78,20 @@ def parse_factors(text: str, names: tuple[str, ...], option: str) -> tuple[float
         for name in names if key == ALL else (key,):
             factors[name] = factor
     return tuple(factors[n] for n in names)
+
+
+def stated_noise_of(spec: str) -> StatedNoise:
+    """A sweep cell's "DIRECTION=FACTOR" (one of STATED_DIRECTIONS; "" states nothing wrong)."""
+    if not spec:
+        return StatedNoise()
+    direction, _, value = spec.partition("=")
+    if direction in ("odometry", *ODOMETRY_AXES):
+        key = ALL if direction == "odometry" else direction
+        return StatedNoise(odometry=parse_factors(f"{key}={value}", ODOMETRY_AXES, spec))
+    if direction in ("detections", *DETECTION_COMPONENTS):
+        key = ALL if direction == "detections" else direction
+        return StatedNoise(detections=parse_factors(f"{key}={value}", DETECTION_COMPONENTS, spec))
+    raise InputError(f"not a stated direction: {spec!r}; use one of {', '.join(STATED_DIRECTIONS)}")
 
 
 def parse_factor(value: str, option: str) -> float:

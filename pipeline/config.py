@@ -104,7 +104,6 @@ class NoiseConfig:
     odometry_scale: tuple[Scale, Scale, Scale, Scale, Scale, Scale]
     measurement_scale: tuple[Scale, Scale, Scale]
     update_every: Keyframes
-    sample_every: Keyframes
     min_scale: Annotated[float, FRACTION]
     max_scale: Annotated[float, within(1.0, 1e6)]
     deadband: Annotated[float, within(1.0, 1e6)]
@@ -114,8 +113,8 @@ class NoiseConfig:
     long_drift_window: Annotated[int, within(0, 10**6)]
     drift_windows: Keyframes
     min_drift_windows: Keyframes
-    innovations: Keyframes
-    min_innovations: Keyframes
+    contrasts: Keyframes
+    min_contrasts: Keyframes
 
 
 @dataclass(frozen=True)

@@ -237,7 +237,7 @@ def drift_config(**noise):
         drift_window=10,
         long_drift_window=40,
         min_drift_windows=3,
-        min_innovations=10,
+        min_contrasts=10,
         **noise,
     )
     return dataclasses.replace(config, noise=n)

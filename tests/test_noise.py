@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
+from pipeline.backend.geometry import predict_point_batch, predict_point_jacobians_batch
 from pipeline.backend.noise import DriftScaleBelief, NoiseScales, scaled_covariance
 from pipeline.backend.noise.components import (
     OUTLIER_SCALE,
@@ -18,6 +19,7 @@ from pipeline.backend.noise.components import (
     pair_basis,
     pair_coefficients,
 )
+from pipeline.backend.noise.contrasts import contrast_observation
 from pipeline.backend.noise.drift import (
     SETTLING_VARIANCE,
     DriftWindows,
@@ -26,7 +28,6 @@ from pipeline.backend.noise.drift import (
     relative_covariance,
     transports,
 )
-from pipeline.backend.noise.innovations import innovation_observation
 from pipeline.backend.noise.scales import ODOMETRY_AXES
 
 YAW = ODOMETRY_AXES.index("yaw")
@@ -357,68 +358,128 @@ def test_windows_of_noisy_steps_against_the_true_path_find_the_yaw_scale(true_ya
         assert reading.scales[YAW] == pytest.approx(true_yaw, rel=0.3)
 
 
-# --- innovations ---------------------------------------------------------------------------
+# --- contrasts ----------------------------------------------------------------------------
 
 
-def keyframe_pairings(K, rng):
-    """K pairings of a keyframe: Jacobians, a joint covariance of the pose and K landmarks,
-    the step's stated covariance and each detection's."""
-    H_x = rng.normal(size=(K, 3, 6)) * np.array([1.0, 1.0, 0.1])[None, :, None]
-    H_l = rng.normal(size=(K, 3, 3))
-    joint = random_covariance(6 + 3 * K, rng, 0.001)  # landmarks mapped well
-    step = np.diag([1e-6, 1e-6, 1e-5, 1e-4, 1e-4, 1e-5])
-    measured = np.stack([np.diag([1e-4, 1e-4, 1e-2]) for _ in range(K)])
-    return H_x, H_l, joint, step, measured
+def keyframe_scene(K, rng):
+    """A pose and K landmarks 5-30 m ahead of it, each detection's stated covariance."""
+    rotation = gtsam.Rot3.RzRyRx(*rng.normal(0, 0.2, 3)).matrix()
+    translation = rng.normal(0, 1.0, 3)
+    body = np.column_stack([rng.uniform(5, 30, K), rng.uniform(-10, 10, K), rng.uniform(-2, 2, K)])
+    landmarks = body @ rotation.T + translation
+    stated = np.stack([np.diag([1e-4, 4e-4, 1e-2]) for _ in range(K)])
+    return rotation, translation, landmarks, stated
 
 
-def test_an_innovation_observation_at_the_scales_in_use_is_the_joint_s_innovation_covariance():
-    rng = np.random.default_rng(14)
-    K = 3
-    H_x, H_l, joint, step, measured = keyframe_pairings(K, rng)
-    used = np.array([1, 1, 30.0, 2.0, 1, 1, 0.5, 1.0, 4.0])
-    Q_used = scaled_covariance(step, used[:6])
-    joint[:6, :6] += Q_used  # the keyframe's joint holds the step at the scales in use
-    slots = 6 + 3 * np.arange(K)
-    o = innovation_observation(
-        rng.normal(size=(K, 3)), H_x, H_l, slots, joint, Q_used, step, measured, used
-    )
-    J = np.zeros((3 * K, 6 + 3 * K))
-    for k in range(K):
-        J[3 * k : 3 * k + 3, :6] = H_x[k]
-        J[3 * k : 3 * k + 3, slots[k] : slots[k] + 3] = H_l[k]
-    Gamma = np.zeros((3 * K, 3 * K))
-    for k in range(K):
-        Gamma[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = scaled_covariance(measured[k], used[6:])
-    expected = J @ joint @ J.T + Gamma
-    got = o.rest + np.einsum("p,pab->ab", pair_coefficients(used, o.pairs), o.basis)
-    np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-15)
+def test_a_contrast_does_not_see_the_pose_s_error_along_its_free_directions():
+    """Detections exactly where the landmarks are: moving the pose along a free direction
+    changes the observation to second order only; along a pinned one (a planar log's height)
+    to first order. (N is defined up to a rotation: its length is what is compared.)"""
+    rng = np.random.default_rng(21)
+    rotation, translation, landmarks, stated = keyframe_scene(4, rng)
+    measured = predict_point_batch(rotation, translation, landmarks)
+    planar = np.array([False, False, True, True, True, False])  # yaw, x, y free
 
-
-@pytest.mark.parametrize(("bearing", "step_yaw"), [(4.0, 1.0), (1.0, 30.0), (0.1, 30.0)])
-def test_innovations_tell_the_bearing_noise_apart_from_the_step_s_yaw(bearing, step_yaw):
-    """Keyframes of four pairings, innovations drawn with the bearing's variance `bearing`
-    times the stated one and the step's yaw `step_yaw` times: the bearing's scale comes back
-    and only it moves; an understated yaw (shared by every bearing) is not taken for it."""
-    rng = np.random.default_rng(15)
-    true = np.array([1, 1, step_yaw, 1, 1, 1, bearing, 1, 1])
-    names = (*(f"step {a}" for a in ODOMETRY_AXES), "bearing", "elevation", "range")
-    likelihood = ScaleLikelihood(names, kept=1000)
-    for _ in range(600):
-        H_x, H_l, joint, step, measured = keyframe_pairings(4, rng)
-        slots = 6 + 3 * np.arange(4)
-        o = innovation_observation(
-            np.zeros((4, 3)), H_x, H_l, slots, joint, np.zeros((6, 6)), step, measured, np.ones(9)
+    def length(axis, eps, free):
+        delta = np.zeros(6)
+        delta[axis] = eps
+        moved = gtsam.Pose3(gtsam.Rot3(rotation), translation).retract(delta)
+        o = contrast_observation(
+            moved.rotation().matrix(),
+            moved.translation(),
+            landmarks,
+            measured,
+            stated,
+            np.full(4, 5),
+            np.array([2.0, 1.0, 0.5]),
+            free,
         )
-        V = o.rest + np.einsum("p,pab->ab", pair_coefficients(true, o.pairs), o.basis)
-        y = rng.multivariate_normal(np.zeros(12), V, method="cholesky")
-        likelihood.add(ScaleObservation.made(y, o.rest, o.basis, o.pairs, np.ones(9)))
-    tested = np.arange(9) >= 6
-    reading = likelihood.reading(np.ones(9), (0.01, 1e4), 3.0, 2.0, drop=2, tested=tested)
-    if bearing == 1.0:
-        assert reading.scales is None or np.allclose(reading.scales[6:], 1.0)
-    else:  # within a factor 1.5: what 600 keyframes tell of a bearing noise 10 times smaller
-        assert bearing / 1.5 < reading.scales[6] < bearing * 1.5
-        np.testing.assert_allclose(reading.scales[7:], 1.0)
+        return np.linalg.norm(o.y)
+
+    for axis in range(6):  # ten times smaller a move, a hundred times smaller a change
+        big, small = length(axis, 1e-3, None), length(axis, 1e-4, None)
+        assert big < 1e-12 or big / small == pytest.approx(100, rel=0.1)  # yaw: none at all
+    assert length(5, 1e-3, planar) / length(5, 1e-4, planar) == pytest.approx(10, rel=0.1)
+    assert (
+        contrast_observation(
+            rotation,
+            translation,
+            landmarks[:2],
+            measured[:2],
+            stated[:2],
+            np.full(2, 5),
+            np.ones(3),
+        )
+        is None
+    )  # two detections: nothing is left once six pose directions are out
+
+
+def test_a_contrast_s_covariance_is_the_residuals_with_the_landmarks_share_taken_out():
+    """The observation's covariance at scales s, by hand: N^T W (blockdiag of (1 - 1/n_k)
+    Gamma_k(s)) W^T N with N the complement of the whitened pose Jacobian."""
+    rng = np.random.default_rng(22)
+    K = 4
+    rotation, translation, landmarks, stated = keyframe_scene(K, rng)
+    measured = predict_point_batch(rotation, translation, landmarks)
+    used = np.array([2.0, 1.0, 0.5])
+    sightings = np.array([2, 3, 10, 1])
+    o = contrast_observation(rotation, translation, landmarks, measured, stated, sightings, used)
+    _, H_x, _ = predict_point_jacobians_batch(rotation, translation, landmarks)
+    root = np.sqrt(used)
+    W = np.zeros((3 * K, 3 * K))
+    H = np.zeros((3 * K, 6))
+    for k in range(K):
+        w = np.linalg.inv(np.linalg.cholesky(stated[k] * np.outer(root, root)))
+        W[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = w
+        H[3 * k : 3 * k + 3] = w @ H_x[k]
+    U, _, _ = np.linalg.svd(H)
+    N = U[:, 6:]
+    s = np.array([3.0, 0.5, 7.0])
+    G = np.zeros((3 * K, 3 * K))
+    for k in range(K):
+        G[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = (1 - 1 / sightings[k]) * scaled_covariance(
+            stated[k], s
+        )
+    expected = N.T @ W @ G @ W.T @ N  # N is defined up to a rotation: compare invariants
+    got = o.rest + np.einsum("p,pab->ab", pair_coefficients(s, o.pairs), o.basis)
+    np.testing.assert_allclose(np.linalg.eigvalsh(got), np.linalg.eigvalsh(expected), atol=1e-8)
+    assert o.y.shape == (3 * K - 6,)
+
+
+@pytest.mark.parametrize(("true", "moved"), [((6.0, 1, 1), 0), ((1, 1, 0.1), 2), ((1, 1, 1), None)])
+def test_contrasts_find_a_misstated_component_whatever_the_pose_s_error(true, moved):
+    """Keyframes of five detections with noise `true` times the stated variances, seen from a
+    pose whose error (twice the detections' in angle) the contrasts must not take for their noise;
+    landmarks known from many sightings: the misstated component comes back, the others stay."""
+    rng = np.random.default_rng(23)
+    true = np.array(true, dtype=float)
+    likelihood = ScaleLikelihood(("bearing", "elevation", "range"), kept=300)
+    for _ in range(300):
+        rotation, translation, landmarks, stated = keyframe_scene(5, rng)
+        z = predict_point_batch(rotation, translation, landmarks)
+        noise = np.stack(
+            [rng.multivariate_normal(np.zeros(3), scaled_covariance(g, true)) for g in stated]
+        )
+        wrong = gtsam.Pose3(gtsam.Rot3(rotation), translation).retract(
+            rng.normal(0, 1.0, 6) * [0.02, 0.02, 0.02, 0.1, 0.1, 0.1]
+        )
+        o = contrast_observation(
+            wrong.rotation().matrix(),
+            wrong.translation(),
+            landmarks,
+            z + noise,
+            stated,
+            np.full(5, 1000),
+            np.ones(3),
+        )
+        likelihood.add(o)
+    reading = likelihood.reading(np.ones(3), (0.01, 1e4), 3.0, 1.5, drop=2)
+    if moved is None:
+        assert reading.scales is None or np.allclose(reading.scales, 1.0)
+        return
+    assert true[moved] / 1.5 < reading.scales[moved] < true[moved] * 1.5
+    others = np.arange(3) != moved
+    np.testing.assert_allclose(reading.scales[others], 1.0)
 
 
 # --- loops ---------------------------------------------------------------------------------

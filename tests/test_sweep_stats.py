@@ -220,7 +220,7 @@ NEW_METRICS = {
         "measurement": {"bearing": 1.0, "elevation": 0.5, "range": 2.0},
         "moves": [
             {"pose_index": 50, "source": "drift windows", "scales": {}},
-            {"pose_index": 200, "source": "innovations", "scales": {}},
+            {"pose_index": 200, "source": "detections", "scales": {}},
         ],
     },
 }

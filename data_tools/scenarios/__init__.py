@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_park
 from data_tools.scenarios.common import (
     SimulationOptions,
@@ -30,6 +32,32 @@ _MODULES = {
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
 
 __all__ = ["MAX_NOISE_SCALE", "SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
+
+
+def noise_truth(
+    scenario: str,
+    config_path: Path | None,
+    odom_noise_scale: float,
+    true_covariance: bool,
+    stated: StatedNoise | None = None,
+) -> dict[str, float]:
+    """What a scenario's log understates, per direction: the variance of the noise drawn over
+    the variance the log states (above 1: understated), for the odometry's directions
+    (`ODOMETRY_AXES`) and the detections' components; what a learnt scale should come to.
+    The scenarios state each detection's covariance as drawn."""
+    from data_tools.scenarios.noise import odometry_covariances
+    from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
+
+    stated = stated or StatedNoise()
+    config = _MODULES[scenario].load_config(config_path)
+    calibrated, true = odometry_covariances(config.odometry, odom_noise_scale)
+    written = np.diag(true if true_covariance else calibrated) * np.array(stated.odometry)
+    odometry = np.diag(true) / written
+    detections = 1.0 / np.array(stated.detections)
+    return {
+        **dict(zip(ODOMETRY_AXES, odometry.tolist(), strict=True)),
+        **dict(zip(MEASUREMENT_COMPONENTS, detections.tolist(), strict=True)),
+    }
 
 
 def _number(name: str, value: float) -> float:

@@ -26,7 +26,7 @@ from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
 from pipeline.backend.methods import BackendContext, Keyframe, make_method
-from pipeline.backend.noise import NoiseLearner, NoiseMove, NoiseScales
+from pipeline.backend.noise import HeldDetections, NoiseLearner, NoiseMove, NoiseScales
 from pipeline.backend.planar import planar_prior_factors
 from pipeline.backend.solver import Isam2Solver, SolverFallback, fallback_counts
 from pipeline.backend.view import ReadOnlyMap
@@ -102,8 +102,9 @@ class Backend:
         )
         # Only a method that associates keyframes jointly sees the sure pairings that tell the
         # detections' noise: it alone learns the noise.
-        self.noise = NoiseLearner(config.noise, self.method.wants_joint)
+        self.noise = NoiseLearner(config.noise, self.method.wants_joint, planar)
         self.records: list[AssociationRecord] = []
+        self._first_record: list[int] = []  # per pose, its first record's index in `records`
         # (handle, odometry) of each pose's odometry factor, while its scale may change
         self._odometry: list[tuple[int, Odometry]] = []
         self.num_poses = 0
@@ -169,15 +170,13 @@ class Backend:
             prediction,
             measurements,
             is_recent=lambda j: self.context.seen_lately(j, prediction.pose_index),
-            # now and then the whole joint test, so that sure pairings tell the noise too
-            full=self.noise.samples(prediction.pose_index),
         )
         return Keyframe(prediction, measurements, candidates, joint)
 
     def associate(self, keyframe: Keyframe) -> list[AssociationRecord]:
         """The method's factors for the keyframe's detections, pending in iSAM2."""
         records = self.method.associate_keyframe(keyframe)
-        self.noise.observe_keyframe(keyframe, records, self.context.last_seen)
+        self._first_record.append(len(self.records))
         for r in records:
             self.context.register(r)
             self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
@@ -205,7 +204,7 @@ class Backend:
     def learn_noise(self, pose_index: int) -> bool:
         """The noise scales learnt anew; whether they moved (every factor of a kind that moved
         is then reweighted, pending: the graph is to be solved anew)."""
-        change = self.noise.learn(pose_index, self.solver)
+        change = self.noise.learn(pose_index, self.solver, self.held_detections)
         if change.odometry:
             for k, (handle, odometry) in enumerate(self._odometry):
                 self.solver.remove(handle)
@@ -218,6 +217,53 @@ class Backend:
             for landmark in self.landmarks.landmarks.values():
                 landmark.covariance_bound = None
         return bool(change)
+
+    def held_detections(self, poses: range) -> list[HeldDetections]:
+        """Each keyframe's point detections that a landmark holds with others, at the current
+        estimate, for keyframes `poses` (those with none are left out)."""
+        held_by: dict[int, int] = {}  # landmark: how many detections it holds
+
+        def sightings(j: int) -> int:
+            if j not in held_by:
+                held_by[j] = len(self.context.held_detections(j))
+            return held_by[j]
+
+        chosen = []
+        for i in poses:
+            end = self._first_record[i + 1] if i + 1 < len(self._first_record) else None
+            held = [
+                r
+                for r in self.records[self._first_record[i] : end]
+                if r.landmark_id >= 0
+                and r.measurement.kind is LandmarkKind.POINT
+                and sightings(r.landmark_id) >= 2
+            ]
+            if len(held) >= 2:
+                chosen.append((i, held))
+        if not chosen:
+            return []
+        ids = sorted({r.landmark_id for _, held in chosen for r in held})
+        keys = [X(i) for i, _ in chosen] + [L(j) for j in ids]
+        order = np.argsort(keys)
+        rows = np.empty((len(keys), 12))
+        rows[order] = self.solver.flat_estimates(
+            [keys[k] for k in order], np.array([k < len(chosen) for k in order])
+        )
+        point = {j: rows[len(chosen) + n, 9:] for n, j in enumerate(ids)}
+        out = []
+        for n, (_, held) in enumerate(chosen):
+            ms = [r.measurement for r in held]
+            out.append(
+                HeldDetections(
+                    rows[n, :9].reshape(3, 3),
+                    rows[n, 9:],
+                    np.array([point[r.landmark_id] for r in held]),
+                    np.array([m.vector for m in ms]),
+                    np.array([np.reshape(m.detection.covariance, (3, 3)) for m in ms]),
+                    np.array([sightings(r.landmark_id) for r in held]),
+                )
+            )
+        return out
 
     def report(
         self,

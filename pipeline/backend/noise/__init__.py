@@ -9,9 +9,9 @@ applied to every stated covariance, D S D with D = diag(sqrt(s)):
 - the odometry's per body-frame direction (`ODOMETRY_AXES`: roll, pitch, yaw, forward,
   lateral, vertical), from drift windows: the odometry composed over a window against the
   estimate's relative pose of the window's ends (`drift.py`);
-- a detection's per component (`MEASUREMENT_COMPONENTS`: bearing, elevation, range), from the
-  innovations of a keyframe's sure pairings, the odometry step's error a nuisance read with
-  them (`innovations.py`).
+- a detection's per component (`MEASUREMENT_COMPONENTS`: bearing, elevation, range), from
+  what each keyframe's detections disagree about at the current estimate, the pose's error
+  projected out (`contrasts.py`).
 
 Both are the same likelihood (`components.py`): each observation Gaussian with a covariance
 linear in the scales' pair coefficients, each possibly an outlier (a window bent by a wrong
@@ -33,7 +33,7 @@ say it). Only overstated or understated by more than the deadband is corrected.
 covariance, from the loops closed so far.
 """
 
-from pipeline.backend.noise.learner import NoiseChange, NoiseLearner, NoiseMove
+from pipeline.backend.noise.learner import HeldDetections, NoiseChange, NoiseLearner, NoiseMove
 from pipeline.backend.noise.loops import DriftScaleBelief
 from pipeline.backend.noise.scales import (
     MEASUREMENT_COMPONENTS,
@@ -46,6 +46,7 @@ __all__ = [
     "MEASUREMENT_COMPONENTS",
     "ODOMETRY_AXES",
     "DriftScaleBelief",
+    "HeldDetections",
     "NoiseChange",
     "NoiseLearner",
     "NoiseMove",

@@ -35,6 +35,7 @@ LOG_2PI = float(np.log(2.0 * np.pi))
 OUTLIER_SHARE = 0.05
 OUTLIER_SCALE = 1e4
 PRIOR_LOG_SIGMA = 3.0
+DOWN_EVIDENCE = 2.0
 # Coordinate scans step the log scale by this factor.
 SCAN_STEP = 2.0
 
@@ -204,9 +205,9 @@ class ScaleLikelihood:
     ) -> Reading:
         """Where the observations put the scales, and which of the `tested` directions
         (default: all; the others are nuisances, always fitted) move from `current`: those
-        whose fit lies `deadband` times away or more with at least `min_evidence` nats
-        (profile likelihood ratio, less the `drop` observations that gain most). The scales
-        are then fitted again with the others tested held."""
+        whose fit lies `deadband` times away or more with at least `min_evidence` nats up, or
+        DOWN_EVIDENCE times that down (profile likelihood ratio, less the `drop` observations
+        that gain most). The scales are then fitted again with the others tested held."""
         n = len(self.names)
         tested = np.ones(n, bool) if tested is None else np.asarray(tested, bool)
         now = np.log(np.asarray(current, dtype=float))
@@ -225,7 +226,11 @@ class ScaleLikelihood:
             gains = np.sort(top - self.per_observation(held))[::-1]
             prior = 0.5 * (best[i] ** 2 - now[i] ** 2) / PRIOR_LOG_SIGMA**2
             evidence[i] = float(np.sum(gains[drop:]) - prior)
-        moving = evidence >= min_evidence
+        # Down takes DOWN_EVIDENCE times the evidence: a noise learnt too small turns true
+        # revisits away (and the outlier component, taking the tails of a heavier-tailed
+        # truth, leans the fit down), while one learnt too large only widens the gates.
+        needed = np.where(best < now, DOWN_EVIDENCE * min_evidence, min_evidence)
+        moving = evidence >= needed
         if not moving.any():
             return Reading(None, np.exp(best), evidence)
         after = self.fit(now, moving | ~tested, bounds)

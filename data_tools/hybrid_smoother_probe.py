@@ -28,7 +28,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from gtsam.symbol_shorthand import L, X
 
     from pipeline.backend.factors import odometry_factor
-    from pipeline.backend.methods.dcsam import HybridRecord
+    from pipeline.backend.methods.dcsam.method import HybridRecord
     from pipeline.config import load_config
     from pipeline.log import read_log
     from pipeline.replay import keyframes, new_backend

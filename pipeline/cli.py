@@ -49,6 +49,13 @@ COMMAND_EXAMPLES = {
   mmslam simulate kitti05-cars --out out/kitti05.mcap --seed 1
   mmslam simulate indoor-tags --out out/short.mcap --config my-route.toml
 """,
+    "restate": """examples:
+  mmslam restate out/vp.mcap --stated-detections bearing=4,range=4 --out out/vp-loose.mcap
+  mmslam restate out/kitti05.mcap --stated-odometry yaw=0.1 --out out/kitti05-yaw.mcap
+
+Factors are on variances: 4 states sigmas twice what they are, 0.1 about a third. Everything
+else in the log is copied as it was. mmslam simulate takes the same options.
+""",
     "frontend": "",  # the layouts, each with an example: frontend_examples()
     "replay": """examples:
   mmslam replay out/tags.mcap --method mm-nh --out out/tags-mm-nh
@@ -192,6 +199,25 @@ def _say(args: argparse.Namespace, *lines: str) -> None:
             print(line)
 
 
+def _stated_noise(args: argparse.Namespace) -> Any:
+    """The `--stated-*` options as a `StatedNoise` (variance factors per direction)."""
+    from data_tools.stated_noise import (
+        DETECTION_COMPONENTS,
+        ODOMETRY_AXES,
+        StatedNoise,
+        parse_factor,
+        parse_factors,
+    )
+
+    return StatedNoise(
+        odometry=parse_factors(args.stated_odometry, ODOMETRY_AXES, "--stated-odometry"),
+        detections=parse_factors(
+            args.stated_detections, DETECTION_COMPONENTS, "--stated-detections"
+        ),
+        relative_pose=parse_factor(args.stated_tag_pose, "--stated-tag-pose"),
+    )
+
+
 def _cmd_simulate(args: argparse.Namespace) -> int:
     from data_tools.scenarios import simulate
 
@@ -204,9 +230,39 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
         num_classes=args.num_classes,
         true_covariance=args.true_covariance,
         config_path=args.config,
+        stated=_stated_noise(args),
     )
     _say(args, summary.summary_line())
     return 0
+
+
+def _cmd_restate(args: argparse.Namespace) -> int:
+    from data_tools.stated_noise import restate_log
+
+    stated = _stated_noise(args)
+    steps, detections = restate_log(args.log, args.out, stated)
+    print(
+        f"{args.log}: {steps} odometry steps and {detections} detections stated as "
+        f"{stated.describe() or 'they were'} -> {args.out}"
+    )
+    return 0
+
+
+def _add_stated_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--stated-odometry", default="", metavar="DIR=F,...",
+        help="state the odometry's variance F times what it is, per direction (roll, pitch, "
+        "yaw, forward, lateral, vertical, or all), e.g. yaw=0.1",
+    )  # fmt: skip
+    parser.add_argument(
+        "--stated-detections", default="", metavar="COMP=F,...",
+        help="state a detection's variance F times what it is, per component (bearing, "
+        "elevation, range, or all), e.g. bearing=4,range=4",
+    )  # fmt: skip
+    parser.add_argument(
+        "--stated-tag-pose", default="1", metavar="F",
+        help="state a tag's relative pose covariance F times what it is (default 1)",
+    )  # fmt: skip
 
 
 def _cmd_convert(args: argparse.Namespace) -> int:
@@ -427,6 +483,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="write the odometry covariance of the noise drawn, not the calibrated model's",
     )  # fmt: skip
     simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
+    _add_stated_options(simulate)
+
+    restate = _subcommand(
+        commands, "restate", "a log with its noise stated wrong on purpose", _cmd_restate
+    )
+    restate.add_argument("log", type=Path, metavar="LOG.mcap")
+    restate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    _add_stated_options(restate)
 
     frontend = _subcommand(commands, "frontend", "stereo images to a detection log", _cmd_frontend)
     frontend.add_argument(

@@ -101,23 +101,20 @@ class MergeConfig:
 @dataclass(frozen=True)
 class NoiseConfig:
     estimate: bool
-    odometry_scale: Scale
-    odometry_start_scale: Scale
+    odometry_scale: tuple[Scale, Scale, Scale, Scale, Scale, Scale]
     measurement_scale: tuple[Scale, Scale, Scale]
     update_every: Keyframes
-    sample_every: Keyframes
-    window: Annotated[int, within(1, 10**7)]  # pairings kept
-    min_pairings: Annotated[int, within(1, 10**7)]
     min_scale: Annotated[float, FRACTION]
     max_scale: Annotated[float, within(1.0, 1e6)]
-    max_step: Annotated[float, within(1.0, 1e6)]
+    deadband: Annotated[float, within(1.0, 1e6)]
+    evidence: Annotated[float, within(0.0, 1e6)]
+    drop: Annotated[int, within(0, 1000)]
     drift_window: Keyframes
     long_drift_window: Annotated[int, within(0, 10**6)]
     drift_windows: Keyframes
     min_drift_windows: Keyframes
-    drift_deadband: Annotated[float, within(1.0, 1e6)]
-    drift_evidence: Annotated[float, within(0.0, 1e6)]
-    scale_from_loops: bool
+    contrasts: Keyframes
+    min_contrasts: Keyframes
 
 
 @dataclass(frozen=True)
@@ -171,14 +168,9 @@ def load_config(path: str | Path | None = None) -> Config:
     n, a = config.noise, config.association
     source = path if path is not None else default
     settings.require(
-        all(n.min_scale <= x <= n.max_scale for x in (n.odometry_scale, *n.measurement_scale)),
+        all(n.min_scale <= x <= n.max_scale for x in (*n.odometry_scale, *n.measurement_scale)),
         source,
         "noise.odometry_scale and measurement_scale must lie within min_scale..max_scale",
-    )
-    settings.require(
-        n.odometry_start_scale <= n.max_scale,
-        source,
-        "noise.odometry_start_scale must be <= max_scale",
     )
     settings.require(
         a.crowded_loop_pairs >= a.min_loop_pairs,

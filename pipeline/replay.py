@@ -109,8 +109,9 @@ def run_backend(
     backend = new_backend(log, method, config)
     steps = track(keyframes(log), log.num_poses, f"replay {method}", "pose", enabled=progress)
     for odometry, detections in steps:
+        start = time.perf_counter()
         report = backend.add_keyframe(odometry, detections)
-        sink.keyframe(report, backend)
+        sink.keyframe(report, time.perf_counter() - start)
     return backend
 
 
@@ -130,19 +131,10 @@ def compute_metrics(
         "nulls": sum(j < 0 for j in chosen),
         "switches": result.switches,
         "merges": result.merges,
+        # the scales the replay ended with, per direction, and every move with its evidence
         "noise_scales": {
-            "odometry": result.noise.odometry,
-            "measurement": list(result.noise.measurement),
-            "odometry_moves": [
-                {
-                    "pose_index": m.pose_index,
-                    "from": m.before,
-                    "to": m.after,
-                    "evidence_nats": round(m.evidence, 3),
-                    "source": m.source,
-                }
-                for m in result.odometry_moves
-            ],
+            **result.noise.report(),
+            "moves": [move.report() for move in result.noise_moves],
         },
         **({"loop_drift": result.loop_drift} if result.loop_drift is not None else {}),
     }

@@ -10,10 +10,11 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
+from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
 from pipeline.backend.hypotheses import AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement, make_measurement
-from pipeline.backend.methods.base import BackendContext
+from pipeline.backend.methods.base import BackendContext, Keyframe
 from pipeline.backend.solver import Isam2Solver
 from pipeline.config import Config, load_config
 from pipeline.geometry import bearing_elevation_range
@@ -32,6 +33,20 @@ def with_settings(config: Config, **sections) -> Config:
             for name, values in sections.items()
         },
     )
+
+
+def keyframe_at(
+    pose_index: int,
+    pose: gtsam.Pose3 | None = None,
+    measurements: list[Measurement] | None = None,
+    candidates: list[Candidates] | None = None,
+    joint: KeyframeCovariance | None = None,
+) -> Keyframe:
+    """A keyframe as the association step gets it, its pose predicted at `pose`."""
+    prediction = PosePrediction(
+        pose_index, X(pose_index - 1), pose or gtsam.Pose3(), np.eye(6), np.zeros((6, 6))
+    )
+    return Keyframe(prediction, measurements or [], candidates or [], joint)
 
 
 def hand_context(config: Config | None = None, confusion: np.ndarray = CONFUSION):

@@ -153,9 +153,9 @@ def test_a_keyframe_scored_at_once_gives_each_detection_what_it_gets_alone(keep_
             relative = step.between(tag).compose(gtsam.Pose3.Expmap(rng.normal(0, 0.02, 6)))
             keyframe.insert(int(rng.integers(len(keyframe))), _tag_measurement(1, relative))
         s = scorer(context, keep_joint)
-        together = s.score(prediction, keyframe, full=True)
+        together, _ = s.score(prediction, keyframe, full=True)
         for m, c in zip(keyframe, together, strict=True):
-            (alone,) = s.score(prediction, [m], full=True)
+            (alone,), _ = s.score(prediction, [m], full=True)
             assert c.landmark_ids.tolist() == alone.landmark_ids.tolist()
             assert c.searched == alone.searched
             np.testing.assert_allclose(c.weights, alone.weights, rtol=1e-9, atol=1e-12)
@@ -211,7 +211,7 @@ def test_a_landmark_just_inside_the_gate_passes_and_one_just_outside_does_not(ke
     outside = add_landmark(context, ahead(outside_angle), LANDMARK_SIGMA)
     context.solver.update()
     m = measurement(1, detection_of(gtsam.Pose3(), ahead(0.0), sigmas=GAMMA_SIGMAS))
-    (candidates,) = s.score(prediction, [m])
+    (candidates,), _ = s.score(prediction, [m])
     assert candidates.searched == 2  # the spatial search found both ...
     assert candidates.landmark_ids.tolist() == [inside]  # ... the gate kept one
     assert candidates.mahalanobis_sq[0] == pytest.approx(0.98 * gate, rel=1e-6)
@@ -312,7 +312,7 @@ def test_the_cheap_bound_never_excludes_what_the_exact_gate_keeps(correlation):
     for fraction in (0.1, 0.5, 0.9, 0.97, 1.03, 1.1, 2.0, 10.0):
         z = truth - direction * math.sqrt(fraction * gate / unit_d2)
         detection = detection_at(z, sigmas=GAMMA_SIGMAS)
-        (candidates,) = s.score(prediction, [measurement(1, detection)])
+        (candidates,), _ = s.score(prediction, [measurement(1, detection)])
         kept = candidates.landmark_ids.tolist() == [j]
         assert kept == (fraction < 1.0), fraction
         if kept and not np.isnan(candidates.mahalanobis_sq[0]):
@@ -328,7 +328,7 @@ def test_max_candidates_keeps_the_nearest(max_candidates):
     ids = [add_landmark(context, ahead(a), LANDMARK_SIGMA) for a in angles]
     context.solver.update()
     m = measurement(1, detection_of(gtsam.Pose3(), ahead(0.0), sigmas=GAMMA_SIGMAS))
-    (candidates,) = scorer(context).score(prediction, [m])
+    (candidates,), _ = scorer(context).score(prediction, [m])
     nearest = [j for _, j in sorted(zip(np.abs(angles), ids, strict=True))][:max_candidates]
     assert sorted(candidates.landmark_ids.tolist()) == sorted(nearest)
     assert candidates.searched == len(angles)

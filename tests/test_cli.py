@@ -137,10 +137,10 @@ def test_known_without_truth_ids_exits_2(tmp_path, capsys, earlier_run):
             "'isam2.relinearize_skip' must be in [1, 1e6], got 4294967297",
         ),
         (
-            "[noise]\nwindow = 99999999999999999999\n",
-            "'noise.window' must be in [1, 1e7], got 99999999999999999999",
+            "[noise]\ncontrasts = 99999999999999999999\n",
+            "'noise.contrasts' must be in [1, 1e6], got 99999999999999999999",
         ),
-        ("[noise]\nwindow = 2.5\n", "'noise.window' must be int, got 2.5"),
+        ("[noise]\ncontrasts = 2.5\n", "'noise.contrasts' must be int, got 2.5"),
         ("[association]\nnull_wieght = 0.2\n", "unknown key 'association.null_wieght'"),
         ("[isam2]\nrelinearize_skip = 'often'\n", "'isam2.relinearize_skip' must be int"),
         ("[association\n", "not valid TOML"),

@@ -14,8 +14,13 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import L, X
 
-from pipeline.backend import discrete_step
-from pipeline.backend.dcsam_model import (
+from pipeline.backend.decisions import MeasurementSpace
+from pipeline.backend.hypotheses import NULL
+from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.measurements import make_measurement
+from pipeline.backend.methods.dcsam import discrete_step
+from pipeline.backend.methods.dcsam.method import HybridRecord
+from pipeline.backend.methods.dcsam.model import (
     class_log_evidence,
     class_posterior,
     geometric_weights,
@@ -23,11 +28,6 @@ from pipeline.backend.dcsam_model import (
     mode_probabilities,
     new_landmark_log_volume,
 )
-from pipeline.backend.decisions import MeasurementSpace
-from pipeline.backend.hypotheses import NULL
-from pipeline.backend.landmarks import LandmarkKind
-from pipeline.backend.measurements import make_measurement
-from pipeline.backend.methods.dcsam import HybridRecord
 from pipeline.backend.solver import Isam2Solver
 from pipeline.cli import main
 from pipeline.config import load_config

@@ -15,6 +15,7 @@ from tests.backend_cases import (
     add_pose,
     detection_of,
     hand_context,
+    keyframe_at,
     measurement,
     with_settings,
 )
@@ -49,7 +50,7 @@ def em_case(max_iterations: int, tolerance: float):
     m = measurement(1, detection_of(TRUE_POSE, A, sigmas=SIGMAS))
     # weighed alike at first, B listed first (the first of a tie is the association)
     candidates = Candidates(np.array([b, a]), np.array([0.5, 0.5]), SEMANTIC, np.zeros(2), 2)
-    record = method.associate(m, candidates)
+    record = method.associate(m, candidates, keyframe_at(1))
     moved = context.after_update(context.solver.update())
     assert X(1) in moved
     start = context.solver.num_updates

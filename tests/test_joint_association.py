@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.backend.association import gaussian_log_density
-from pipeline.backend.joint_association import (
+from pipeline.backend.methods.maxmixture.joint_association import (
     NONE,
     DetectionOptions,
     KeyframeProblem,

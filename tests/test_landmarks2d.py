@@ -141,11 +141,11 @@ def test_a_small_real_dataset_replays_with_its_associations(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_victoria_park_closes_its_loops_once_its_loops_tell_the_drift(tmp_path):
+def test_victoria_park_closes_its_loops_once_the_drift_windows_tell_the_yaw(tmp_path):
     """The real Victoria Park, the given associations hidden from MM + NH (README, "Victoria
-    Park"): its odometry's yaw bias keeps every loop open at the stated noise, until the first
-    loops the merges close raise the odometry's scale; from there its loops close as Known
-    DA's do. With the windows alone (`scale_from_loops = false`): 547 landmarks, 217 m."""
+    Park"): its odometry's yaw bias keeps every loop open at the stated noise, until the drift
+    windows raise the yaw's scale (its forward noise stated about right); from there its loops
+    close as Known DA's do."""
     log = tmp_path / "vp.mcap"
     convert_landmarks2d(VICTORIA_PARK, log)
     for method in ("known", "mm-nh"):
@@ -153,11 +153,13 @@ def test_victoria_park_closes_its_loops_once_its_loops_tell_the_drift(tmp_path):
         assert cli_main(["replay", str(log), "--method", method, "--out", str(out), "-q"]) == 0
     metrics = json.loads((tmp_path / "mm-nh" / "metrics.json").read_text())
     assert metrics["solver_fallbacks"] == {"batch": 0, "qr": 0}
-    assert [m["source"] for m in metrics["noise_scales"]["odometry_moves"]][:1] == ["loops"]
+    odometry = metrics["noise_scales"]["odometry"]
+    assert odometry["yaw"] >= 4.0 and 0.5 <= odometry["forward"] <= 2.0
+    assert {m["source"] for m in metrics["noise_scales"]["moves"]} >= {"drift windows"}
     given = metrics["association"]
     assert given["correct"] >= 0.95 * sum(given.values())
     assert metrics["num_landmarks"] <= 1.2 * 151
     gap = read_tum(tmp_path / "mm-nh" / "trajectory.tum") - read_tum(
         tmp_path / "known" / "trajectory.tum"
     )
-    assert np.sqrt(np.mean(np.sum(gap**2, axis=1))) <= 5.0
+    assert np.sqrt(np.mean(np.sum(gap**2, axis=1))) <= 6.5  # 5.0 m measured

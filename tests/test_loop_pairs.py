@@ -12,6 +12,7 @@ from gtsam.symbol_shorthand import X
 from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
 from pipeline.backend.hypotheses import NULL
 from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.methods.base import Keyframe
 from pipeline.backend.methods.maxmixture import MaxMixture
 from tests.backend_cases import detection_at, hand_context, measurement
 
@@ -35,12 +36,7 @@ def keyframe(landmarks: dict[int, int]):
         assert landmark.id == j
         context.last_seen[j] = last
     for corner in ([-1.0, -0.3, 1.0], [1.0, 0.3, 20.0]):  # bearing, elevation, range
-        method.space[LandmarkKind.POINT].observe(np.array(corner), GAMMA)
-    context.prediction = PosePrediction(NOW, X(NOW - 1), gtsam.Pose3(), np.eye(6), np.eye(6))
-    n = len(landmarks)
-    context.keyframe_covariance = KeyframeCovariance(
-        np.eye(6 + 3 * n) * SIGMA**2, {j: 6 + 3 * j for j in range(n)}
-    )
+        context.space[LandmarkKind.POINT].observe(np.array(corner), GAMMA)
     return context, method
 
 
@@ -60,7 +56,6 @@ def options(ids, offsets, weights) -> Candidates:
         residuals=residuals,
         pose_jacobians=np.broadcast_to(H_POSE, (k, 3, 6)).copy(),
         landmark_jacobians=np.broadcast_to(np.eye(3), (k, 3, 3)).copy(),
-        innovation_covariances=np.broadcast_to(np.eye(3) * R_ALONE, (k, 3, 3)).copy(),
     )
 
 
@@ -71,7 +66,10 @@ def decide(method, candidates: list[Candidates]):
         for k in range(len(candidates))
     ]
     before = method.context.landmarks.next_id
-    records = method.associate_keyframe(measurements, candidates)
+    n = len(method.context.landmarks)
+    joint = KeyframeCovariance(np.eye(6 + 3 * n) * SIGMA**2, {j: 6 + 3 * j for j in range(n)})
+    prediction = PosePrediction(NOW, X(NOW - 1), gtsam.Pose3(), np.eye(6), np.eye(6))
+    records = method.associate_keyframe(Keyframe(prediction, measurements, candidates, joint))
     assert all(r.active != NULL for r in records)  # a first choice is a landmark, old or new
     return ["new" if r.landmark_id >= before else r.landmark_id for r in records]
 

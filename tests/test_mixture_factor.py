@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import L, X
 
+from pipeline.backend.methods.maxmixture.mixture_factor import MaxMixtureFactor, component
 from pipeline.backend.mixture import gaussian_log_normaliser, null_component_nll
-from pipeline.backend.mixture_factor import MaxMixtureFactor, component
 from tests.numerics import numerical_jacobian
 
 COVARIANCE = np.diag([1e-4, 1e-4, 1e-2])

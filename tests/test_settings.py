@@ -120,9 +120,10 @@ NEW_BACKEND_SETTINGS = {  # the association, mixture, merge and noise keys of ba
     "[noise]\nmin_scale = 0.0": "'noise.min_scale' must be in (0, 1]",
     "[noise]\nmax_scale = 0.5": "'noise.max_scale' must be in [1, 1e6]",
     "[noise]\nmeasurement_scale = [1.0, -1.0, 1.0]": "'noise.measurement_scale[1]' must be in (0,",
-    "[noise]\nwindow = 0": "'noise.window' must be in [1, 1e7], got 0",
-    "[noise]\nodometry_scale = 500.0": "noise.odometry_scale and measurement_scale must lie",
-    "[noise]\nodometry_start_scale = 500.0": "noise.odometry_start_scale must be <= max_scale",
+    "[noise]\ndrift_windows = 0": "'noise.drift_windows' must be in [1, 1e6], got 0",
+    "[noise]\nodometry_scale = [1, 1, 20000, 1, 1, 1]": "noise.odometry_scale and measurement_",
+    "[noise]\nodometry_scale = [1, 1, 1]": "'noise.odometry_scale' must",
+    "[noise]\ndrop = -1": "'noise.drop' must be in [0, 1000], got -1",
 }
 
 

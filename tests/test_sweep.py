@@ -123,7 +123,8 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
             one_to_one["wrong"],
             one_to_one["landmarks_per_true"],
         )
-        assert row.variance_scale_range == metrics["noise_scales"]["measurement"][2]
+        assert row.variance_scale_range == metrics["noise_scales"]["measurement"]["range"]
+        assert row.variance_scale_yaw == metrics["noise_scales"]["odometry"]["yaw"]
         for name in ("trajectory.tum", "landmarks.csv", "associations.csv"):
             assert (run / name).stat().st_size > 0
     # One log per (cell, seed), shared by the methods, made with the cell's factors.

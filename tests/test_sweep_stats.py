@@ -209,11 +209,18 @@ NEW_METRICS = {
     "merges": 1,
     "solver_fallbacks": {"batch": 3, "qr": 0},
     "noise_scales": {
-        "odometry": 4.5,
-        "measurement": [1.0, 0.5, 2.0],
-        "odometry_moves": [
-            {"pose_index": 50, "from": 1.0, "to": 3.0, "evidence_nats": 4.0},
-            {"pose_index": 200, "from": 3.0, "to": 4.5, "evidence_nats": 3.5},
+        "odometry": {
+            "roll": 1.0,
+            "pitch": 1.0,
+            "yaw": 4.5,
+            "forward": 1.0,
+            "lateral": 0.8,
+            "vertical": 1.0,
+        },
+        "measurement": {"bearing": 1.0, "elevation": 0.5, "range": 2.0},
+        "moves": [
+            {"pose_index": 50, "source": "drift windows", "scales": {}},
+            {"pose_index": 200, "source": "detections", "scales": {}},
         ],
     },
 }
@@ -230,11 +237,16 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
         "false_positives_used",
         "true_landmarks_seen",
         "merges",
-        "variance_scale_odometry",
+        "variance_scale_roll",
+        "variance_scale_pitch",
+        "variance_scale_yaw",
+        "variance_scale_forward",
+        "variance_scale_lateral",
+        "variance_scale_vertical",
         "variance_scale_bearing",
         "variance_scale_elevation",
         "variance_scale_range",
-        "odometry_scale_moves",
+        "noise_moves",
         "fallbacks_batch",
         "fallbacks_qr",
     } == OPTIONAL
@@ -249,10 +261,10 @@ def test_rows_carry_the_newer_metrics_and_leave_them_empty_for_older_runs(tmp_pa
         3,
     )
     assert (row.merges, row.switches) == (1, 2)
-    assert row.variance_scale_odometry == 4.5
+    assert (row.variance_scale_yaw, row.variance_scale_lateral) == (4.5, 0.8)
     scales = (row.variance_scale_bearing, row.variance_scale_elevation, row.variance_scale_range)
     assert scales == (1.0, 0.5, 2.0)
-    assert row.odometry_scale_moves == 2
+    assert row.noise_moves == 2
     assert (row.fallbacks_batch, row.fallbacks_qr) == (3, 0)
     older = {
         k: v

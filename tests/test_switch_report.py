@@ -25,15 +25,16 @@ class Scripted(AssociationMethod):
         self.script = script
         self.by_pose: dict[int, AssociationRecord] = {}
 
-    def associate(self, m, candidates) -> AssociationRecord:
+    def associate(self, m, candidates, keyframe) -> AssociationRecord:
+        self.pose = m.pose_index
         if m.pose_index == 0:
-            return self.new_landmark(m)
+            return self.new_landmark(m, keyframe)
         record = AssociationRecord(m, [0, 1], np.array([0.5, 0.5]), active=0)
         self.by_pose[m.pose_index] = record
         return record
 
     def refine(self, moved) -> list[AssociationRecord]:
-        pose = self.context.prediction.pose_index
+        pose = self.pose
         switched = []
         for record_pose, component in self.script.get(pose, []):
             record = self.by_pose[record_pose]

@@ -66,17 +66,17 @@ class Snapshot(RerunSink):
     step_ms: list[float]  # the back-end's time a keyframe
     switched: dict[int, list[AssociationRecord]]
 
-    def keyframe(self, report, backend) -> None:
+    def keyframe(self, report, seconds) -> None:
         self.expected = getattr(self, "expected", {})
         self.step_ms = getattr(self, "step_ms", [])
         self.switched = getattr(self, "switched", {})
         self.merged = getattr(self, "merged", {})
         if report.merged:  # (duplicate, survivor, whether the duplicate was drawn before)
             self.merged[report.pose_index] = [
-                (d, backend.landmarks.resolve(s), d < self._landmark_total)
+                (d, report.map.landmarks.resolve(s), d < self._landmark_total)
                 for d, s in report.merged
             ]
-        self.step_ms.append(1e3 * report.seconds)
+        self.step_ms.append(1e3 * seconds)
         self.switched[report.pose_index] = list(report.switched)
         self.expected[report.pose_index] = [
             (
@@ -87,7 +87,7 @@ class Snapshot(RerunSink):
             )
             for r, c in zip(report.records, report.candidates, strict=True)
         ]
-        super().keyframe(report, backend)
+        super().keyframe(report, seconds)
 
     def finish(self, result, metrics) -> None:
         self.final = result
@@ -634,10 +634,10 @@ def test_bad_viewer_addresses(address):
 
 
 class Failing(RerunSink):
-    def keyframe(self, report, backend) -> None:
+    def keyframe(self, report, seconds) -> None:
         if report.pose_index == 2:
             raise RuntimeError("boom")
-        super().keyframe(report, backend)
+        super().keyframe(report, seconds)
 
 
 @pytest.mark.e2e

@@ -9,14 +9,18 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
+
 from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_park
 from data_tools.scenarios.common import (
     SimulationOptions,
     SimulationSummary,
+    restated,
     summarise,
     write_log,
 )
 from data_tools.scenarios.config import MAX_NOISE_SCALE
+from data_tools.stated_noise import StatedNoise
 from pipeline.errors import InputError
 
 _MODULES = {
@@ -28,6 +32,32 @@ _MODULES = {
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
 
 __all__ = ["MAX_NOISE_SCALE", "SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
+
+
+def noise_truth(
+    scenario: str,
+    config_path: Path | None,
+    odom_noise_scale: float,
+    true_covariance: bool,
+    stated: StatedNoise | None = None,
+) -> dict[str, float]:
+    """What a scenario's log understates, per direction: the variance of the noise drawn over
+    the variance the log states (above 1: understated), for the odometry's directions
+    (`ODOMETRY_AXES`) and the detections' components; what a learnt scale should come to.
+    The scenarios state each detection's covariance as drawn."""
+    from data_tools.scenarios.noise import odometry_covariances
+    from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
+
+    stated = stated or StatedNoise()
+    config = _MODULES[scenario].load_config(config_path)
+    calibrated, true = odometry_covariances(config.odometry, odom_noise_scale)
+    written = np.diag(true if true_covariance else calibrated) * np.array(stated.odometry)
+    odometry = np.diag(true) / written
+    detections = 1.0 / np.array(stated.detections)
+    return {
+        **dict(zip(ODOMETRY_AXES, odometry.tolist(), strict=True)),
+        **dict(zip(MEASUREMENT_COMPONENTS, detections.tolist(), strict=True)),
+    }
 
 
 def _number(name: str, value: float) -> float:
@@ -47,6 +77,7 @@ def simulate(
     true_covariance: bool = False,
     config_path: Path | None = None,
     foxglove: bool = True,
+    stated: StatedNoise | None = None,
 ) -> SimulationSummary:
     """Write the log of `scenario` to `out` (atomically) and return what it holds.
 
@@ -54,8 +85,9 @@ def simulate(
     `odom_noise_scale` multiplies the paper's added odometry noise (default: the config's);
     `misclassification` is the detector's alpha (1 - alpha on the confusion matrix's diagonal);
     `num_classes` defaults to the config's; `true_covariance` writes the odometry covariance
-    of the noise actually drawn instead of the calibrated model's; `foxglove` adds Foxglove's
-    well-known messages beside the contract's.
+    of the noise actually drawn instead of the calibrated model's; `stated` scales what the
+    log states beyond that, per direction (`data_tools.stated_noise`); `foxglove` adds
+    Foxglove's well-known messages beside the contract's.
     """
     if scenario not in _MODULES:
         raise InputError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
@@ -82,8 +114,9 @@ def simulate(
         misclassification=alpha,
         num_classes=classes,
         true_covariance=bool(true_covariance),
+        stated=stated or StatedNoise(),
     )
-    run = module.simulate(config, options, config_path)
+    run = restated(module.simulate(config, options, config_path), options.stated)
     out = Path(out)
     counts = write_log(out, run, foxglove)
     return summarise(scenario, out, options, run, counts)

@@ -9,6 +9,7 @@ run's would be, so a run of one piece (every shipped configuration) draws as it 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 from collections.abc import Iterable, Iterator, Sequence
@@ -19,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from data_tools.scenarios.geometry import path_length, quaternion_from_rotation
+from data_tools.stated_noise import StatedNoise, restate_detection, restated_covariance
 from pipeline.log import (
     Detection,
     Detections,
@@ -43,6 +45,8 @@ class SimulationOptions:
     misclassification: float
     num_classes: int
     true_covariance: bool
+    # what the log states over the covariance it would state (the truth's or the calibrated)
+    stated: StatedNoise = field(default_factory=StatedNoise)
 
 
 # Array elements (landmark-keyframe pairs, line-of-sight samples against walls) computed at once.
@@ -192,9 +196,23 @@ def source_text(scenario: str, options: SimulationOptions, config: Path | None) 
     )
     if options.true_covariance:
         text += " --true-covariance"
+    if not options.stated.is_identity:
+        text += " " + options.stated.describe()
     if config is not None:
         text += f" --config {config}"
     return text
+
+
+def restated(run: SimulatedRun, stated: StatedNoise) -> SimulatedRun:
+    """`run` with its stated covariances scaled as `stated` says (`data_tools.stated_noise`)."""
+    if stated.is_identity:
+        return run
+    covariance = restated_covariance(tuple(np.ravel(run.odometry_covariance)), stated.odometry)
+    return dataclasses.replace(
+        run,
+        odometry_covariance=np.reshape(covariance, (6, 6)),
+        detections=([restate_detection(d, stated) for d in frame] for frame in run.detections),
+    )
 
 
 def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> DetectionCounts:

@@ -17,8 +17,13 @@ relative to the file. Every problem is an `InputError` naming the file and the k
 
     [[axes]]                          # optional, any number; each makes a figure
     name = "noise"
-    factor = "odom_noise_scale"       # or "misclassification"
-    values = [0, 2, 4, 6, 8, 10]      # the other factor stays at the base cell's; its range
+    factor = "odom_noise_scale"       # or "misclassification", or "stated_yaw" and the like
+    values = [0, 2, 4, 6, 8, 10]      # the other factors stay at the base cell's; its range
+
+A stated-noise axis states one direction of the log's noise its values times (variances) what
+it would state: an odometry direction ("stated_roll" .. "stated_vertical", "stated_odometry"
+for all six), or a detection component ("stated_bearing", "stated_elevation",
+"stated_range", "stated_detections" for all three); its value 1 is the log as it is.
 """
 
 from __future__ import annotations
@@ -35,14 +40,22 @@ from typing import Any
 import msgspec.inspect as mi
 
 from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS
+from data_tools.stated_noise import MAX_FACTOR, STATED_DIRECTIONS
 from pipeline import settings
 from pipeline.errors import InputError
 
-FACTORS = ("odom_noise_scale", "misclassification")
+# An axis stating one direction of the log's noise wrong (or all of the odometry's, or of the
+# detections'), by variance factors (`data_tools/stated_noise.py`): "stated_yaw", ...
+STATED_FACTORS = tuple(f"stated_{d}" for d in STATED_DIRECTIONS)
+FACTORS = ("odom_noise_scale", "misclassification", *STATED_FACTORS)
 # Valid ranges (`pipeline/settings.py`); the sweep files' comments say the same.
 FACTOR_RANGES = {
     "odom_noise_scale": settings.number_type(float, settings.within(0.0, MAX_NOISE_SCALE)),
     "misclassification": settings.number_type(float, settings.UNIT),  # a rate, not a percentage
+    **{
+        f: settings.number_type(float, settings.within(1.0 / MAX_FACTOR, MAX_FACTOR))
+        for f in STATED_FACTORS
+    },
 }
 SEED = settings.number_type(int, settings.within(0, 2**32 - 1))
 SEED_COUNT = settings.number_type(int, settings.within(1, 10**4))
@@ -50,6 +63,7 @@ NUM_CLASSES = settings.number_type(int, settings.within(1, 1000))
 FACTOR_LABELS = {
     "odom_noise_scale": "odometry noise scale",
     "misclassification": "misclassification rate",
+    **{f"stated_{d}": f"{d} stated (variance factor)" for d in STATED_DIRECTIONS},
 }
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _KEYS = {
@@ -90,6 +104,11 @@ class SweepConfig:
     misclassification: float
     axes: tuple[Axis, ...]
     fingerprint: str  # what decides a run's result besides its cell, seed and method
+
+
+def stated_direction(factor: str) -> str:
+    """The direction a stated-noise factor names: "stated_yaw" -> "yaw"."""
+    return factor.removeprefix("stated_")
 
 
 def _methods_known() -> tuple[str, ...]:

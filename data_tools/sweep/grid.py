@@ -1,8 +1,10 @@
 """The grid of a sweep: its cells, its runs, and where each run lives in the output folder.
 
-A cell is a pair (odometry noise scale, misclassification rate). The grid is the base cell and
-every cell on an axis, each once, in the order of the config. A run is a (cell, seed, method);
-it lives in `runs/<cell>/seed<seed>/<method>/`, beside the log its cell and seed share.
+A cell is an odometry noise scale, a misclassification rate and, on a stated-noise axis, which
+direction of the log's noise is stated wrong by what factor (`data_tools/stated_noise.py`). The
+grid is the base cell and every cell on an axis, each once, in the order of the config. A run
+is a (cell, seed, method); it lives in `runs/<cell>/seed<seed>/<method>/`, beside the log its
+cell and seed share.
 """
 
 from __future__ import annotations
@@ -10,7 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from data_tools.sweep.config import Axis, SweepConfig
+from data_tools.stated_noise import StatedNoise, stated_noise_of
+from data_tools.sweep.config import Axis, SweepConfig, stated_direction
 from pipeline.errors import InputError
 
 RUNS_DIR = "runs"
@@ -21,16 +24,26 @@ LOG_NAME = "log.mcap"
 class Cell:
     odom_noise_scale: float
     misclassification: float
+    stated: str = ""  # "DIRECTION=FACTOR" (`config.STATED_FACTORS`), "" for the noise as it is
 
     @property
     def name(self) -> str:
-        return f"noise{self.odom_noise_scale:g}-mis{self.misclassification:g}"
+        name = f"noise{self.odom_noise_scale:g}-mis{self.misclassification:g}"
+        return f"{name}-{self.stated.replace('=', '')}" if self.stated else name
 
     def label(self) -> str:
-        return (
+        label = (
             f"odometry noise scale {self.odom_noise_scale:g}, "
             f"misclassification {100 * self.misclassification:g} %"
         )
+        if self.stated:
+            direction, factor = self.stated.split("=")
+            label += f", {direction} stated {factor}x"
+        return label
+
+    def stated_noise(self) -> StatedNoise:
+        """What the cell's log states over what it would state."""
+        return stated_noise_of(self.stated)
 
 
 @dataclass(frozen=True)
@@ -52,7 +65,13 @@ def axis_cells(config: SweepConfig, axis: Axis) -> list[Cell]:
     base = base_cell(config)
     if axis.factor == "odom_noise_scale":
         return [Cell(v, base.misclassification) for v in axis.values]
-    return [Cell(base.odom_noise_scale, v) for v in axis.values]
+    if axis.factor == "misclassification":
+        return [Cell(base.odom_noise_scale, v) for v in axis.values]
+    direction = stated_direction(axis.factor)
+    return [
+        Cell(base.odom_noise_scale, base.misclassification, "" if v == 1 else f"{direction}={v:g}")
+        for v in axis.values
+    ]
 
 
 def cells(config: SweepConfig) -> list[Cell]:

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from data_tools.sweep.grid import RunKey
+from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
 from pipeline.errors import InputError
 from pipeline.outputs import write_text
 
@@ -60,13 +61,19 @@ class ResultRow:
     false_positives_used: int | None = None
     true_landmarks_seen: int | None = None
     merges: int | None = None
-    # metrics.json's noise_scales: variance scales of the odometry and of each measurement
-    # component at the end of the run (estimated online, or as configured)
-    variance_scale_odometry: float | None = None
+    # metrics.json's noise_scales: variance scales of the odometry per direction and of each
+    # measurement component at the end of the run (learnt online, or as configured), and the
+    # moves that learnt them
+    variance_scale_roll: float | None = None
+    variance_scale_pitch: float | None = None
+    variance_scale_yaw: float | None = None
+    variance_scale_forward: float | None = None
+    variance_scale_lateral: float | None = None
+    variance_scale_vertical: float | None = None
     variance_scale_bearing: float | None = None
     variance_scale_elevation: float | None = None
     variance_scale_range: float | None = None
-    odometry_scale_moves: int | None = None
+    noise_moves: int | None = None
     # metrics.json's solver_fallbacks: graphs Cholesky refused (each a bug), by what followed
     fallbacks_batch: int | None = None
     fallbacks_qr: int | None = None
@@ -86,7 +93,11 @@ ONE_TO_ONE = {  # column: key in metrics.json's association_one_to_one
     "false_positives_used": "false_positives_used",
     "true_landmarks_seen": "true_landmarks_seen",
 }
-MEASUREMENT_SCALES = ("variance_scale_bearing", "variance_scale_elevation", "variance_scale_range")
+# metrics.json's noise_scales tables, and the columns of each direction's scale
+SCALE_COLUMNS = {
+    "odometry": {a: f"variance_scale_{a}" for a in ODOMETRY_AXES},
+    "measurement": {c: f"variance_scale_{c}" for c in MEASUREMENT_COMPONENTS},
+}
 
 
 def _optional(value: Any, kind: type) -> Any:
@@ -102,15 +113,14 @@ def optional_columns(metrics: dict[str, Any]) -> dict[str, Any]:
     one_to_one = one_to_one if isinstance(one_to_one, dict) else {}
     scales = metrics.get("noise_scales")
     scales = scales if isinstance(scales, dict) else {}
-    measurement = scales.get("measurement")
-    if not isinstance(measurement, list) or len(measurement) != len(MEASUREMENT_SCALES):
-        measurement = [None] * len(MEASUREMENT_SCALES)
     values = {c: one_to_one.get(key) for c, key in ONE_TO_ONE.items()}
     values["merges"] = metrics.get("merges")
-    values["variance_scale_odometry"] = scales.get("odometry")
-    values.update(zip(MEASUREMENT_SCALES, measurement, strict=True))
-    moves = scales.get("odometry_moves")
-    values["odometry_scale_moves"] = len(moves) if isinstance(moves, list) else None
+    for table, columns in SCALE_COLUMNS.items():
+        by_name = scales.get(table)
+        by_name = by_name if isinstance(by_name, dict) else {}
+        values.update({column: by_name.get(name) for name, column in columns.items()})
+    moves = scales.get("moves")
+    values["noise_moves"] = len(moves) if isinstance(moves, list) else None
     fallbacks = metrics.get("solver_fallbacks")
     fallbacks = fallbacks if isinstance(fallbacks, dict) else {}
     values["fallbacks_batch"] = fallbacks.get("batch")

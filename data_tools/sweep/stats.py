@@ -127,6 +127,12 @@ def series(
     return out
 
 
+def mean_or_none(values: Sequence[float | None]) -> float | None:
+    """The mean of the values there are (None where none is)."""
+    present = [v for v in values if v is not None]
+    return statistics.fmean(present) if present else None
+
+
 def median_or_none(values: Sequence[float]) -> float | None:
     return statistics.median(values) if values else None
 

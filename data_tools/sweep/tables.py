@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from data_tools.sweep.config import FACTOR_LABELS, Axis, SweepConfig
+from data_tools.sweep.config import FACTOR_LABELS, STATED_FACTORS, Axis, SweepConfig
 from data_tools.sweep.grid import Cell, axis_cells, base_cell, cells
 from data_tools.sweep.inference import CONFIDENCE, RESAMPLES, TIE_M, TIE_SHARE, Comparison, Estimate
 from data_tools.sweep.results import ResultRow
@@ -22,6 +22,7 @@ from data_tools.sweep.stats import (
     SeedSummary,
     SlowestRun,
     comparisons,
+    mean_or_none,
     median_or_none,
     rows_of_cell,
     seed_summaries,
@@ -29,6 +30,7 @@ from data_tools.sweep.stats import (
     slowest_run,
     summarise_methods,
 )
+from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
 
 METHOD_NAMES = {
     "known": "Known DA",
@@ -224,7 +226,54 @@ def headline_text(headline: Headline) -> str:
 
 
 def factor_text(factor: str, value: float) -> str:
-    return f"{100 * value:g} %" if factor == "misclassification" else f"{value:g}"
+    if factor == "misclassification":
+        return f"{100 * value:g} %"
+    return f"{value:g}x" if factor in STATED_FACTORS else f"{value:g}"
+
+
+# The noise-learning method whose learnt scales the tables set against the truth.
+LEARNER = "mm-nh"
+# A direction's learnt scale is shown where its truth or its mean leaves 1 by this factor.
+SHOWN_SCALE = 1.25
+
+
+def scales_table(
+    config: SweepConfig, rows: Sequence[ResultRow], axis: Axis, axis_cells_: Sequence[Cell]
+) -> str | None:
+    """MM + NH's learnt variance scales along an axis, each direction's mean over seeds beside
+    the truth the scenario knows (the noise drawn over the noise the log states, `noise_truth`):
+    a column for each direction whose truth or learnt scale leaves 1 somewhere on the axis."""
+    from data_tools.scenarios import noise_truth
+
+    names = (*ODOMETRY_AXES, *MEASUREMENT_COMPONENTS)
+    truth, learnt = [], []
+    for cell in axis_cells_:
+        truth.append(
+            noise_truth(
+                config.scenario,
+                config.scenario_config,
+                cell.odom_noise_scale,
+                config.true_covariance,
+                cell.stated_noise(),
+            )
+        )
+        mine = [r for r in rows if r.cell == cell.name and r.method == LEARNER]
+        learnt.append(
+            {n: mean_or_none([getattr(r, f"variance_scale_{n}") for r in mine]) for n in names}
+        )
+    shown = [
+        n
+        for n in names
+        if any(max(t[n], 1 / t[n]) >= SHOWN_SCALE for t in truth)
+        or any(v[n] is not None and max(v[n], 1 / v[n]) >= SHOWN_SCALE for v in learnt)
+    ]
+    if not shown or all(v[n] is None for v in learnt for n in shown):
+        return None
+    body = [
+        [factor_text(axis.factor, value)] + [f"{_cell(v[n], 3)} ({t[n]:.3g})" for n in shown]
+        for value, v, t in zip(axis.values, learnt, truth, strict=True)
+    ]
+    return markdown_table([FACTOR_LABELS[axis.factor], *shown], body)
 
 
 def axis_table(
@@ -248,11 +297,16 @@ def axis_table(
 
 
 def held_factor(config: SweepConfig, axis: Axis) -> str:
-    """The factor an axis holds at the base cell's value, in words."""
+    """The factors an axis holds at the base cell's values, in words."""
     base = base_cell(config)
     if axis.factor == "odom_noise_scale":
         return f"misclassification {100 * base.misclassification:g} %"
-    return f"odometry noise scale {base.odom_noise_scale:g}"
+    if axis.factor == "misclassification":
+        return f"odometry noise scale {base.odom_noise_scale:g}"
+    return (
+        f"odometry noise scale {base.odom_noise_scale:g}, "
+        f"misclassification {100 * base.misclassification:g} %"
+    )
 
 
 def render_tables(
@@ -304,4 +358,13 @@ def render_tables(
             f"## Axis `{axis.name}`: rotation RMSE (rad) against {title}\n",
             axis_table(rows, config.methods, axis, along, "rotation_rmse", ROTATION_DIGITS),
         ]
+        learnt = scales_table(config, rows, axis, along)
+        if learnt is not None:
+            parts += [
+                f"## Axis `{axis.name}`: {method_name(LEARNER)}'s learnt noise scales\n",
+                "Each direction's variance scale at the end of the run, the mean over seeds, and "
+                "in brackets the truth: the variance of the noise the scenario drew over the "
+                "variance its log states.\n",
+                learnt,
+            ]
     return "\n".join(parts + cell_sections(config, rows))

@@ -117,6 +117,7 @@ def ensure_log(task: RunTask) -> None:
                 seed=task.key.seed,
                 odom_noise_scale=task.key.cell.odom_noise_scale,
                 misclassification=task.key.cell.misclassification,
+                stated=task.key.cell.stated_noise(),
                 num_classes=task.num_classes,
                 true_covariance=task.true_covariance,
                 config_path=task.scenario_config,

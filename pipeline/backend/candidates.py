@@ -67,7 +67,6 @@ class Candidates:
     residuals: np.ndarray | None = None
     pose_jacobians: np.ndarray | None = None
     landmark_jacobians: np.ndarray | None = None
-    innovation_covariances: np.ndarray | None = None  # R of each candidate
 
     @staticmethod
     def none(searched: int = 0) -> Candidates:
@@ -207,7 +206,7 @@ class CandidateScorer:
         keep_joint: bool = False,
         wide_gate: bool = False,
     ):
-        """`keep_joint`: keep the keyframe's whole joint covariance (`last_joint`) and every
+        """`keep_joint`: return the keyframe's whole joint covariance (`score`) and every
         candidate's residual and Jacobians, for associating the keyframe jointly; the gate is
         then the wider `joint_candidate_confidence`, since the joint test decides. `wide_gate`:
         that gate without the rest, for a method whose own step decides against a new
@@ -220,7 +219,6 @@ class CandidateScorer:
         self.confidence = (
             config.joint_candidate_confidence if keep_joint or wide_gate else config.chi2_confidence
         )
-        self.last_joint: KeyframeCovariance | None = None
 
     def score(
         self,
@@ -228,8 +226,9 @@ class CandidateScorer:
         measurements: list[Measurement],
         is_recent: Callable[[int], bool] | None = None,
         full: bool = False,
-    ) -> list[Candidates]:
-        """Candidates of every detection of one keyframe.
+    ) -> tuple[list[Candidates], KeyframeCovariance | None]:
+        """Candidates of every detection of one keyframe, and (`keep_joint`) the new pose's
+        joint covariance with every candidate, where the joint marginals were asked.
 
         Cheap bounds first screen each detection's nearby landmarks; the joint marginals of the
         anchor pose and every landmark still in play, for all the keyframe's detections at
@@ -239,9 +238,8 @@ class CandidateScorer:
         Keeping the joint (`keep_joint`), a keyframe whose every detection is sure (a lone
         candidate that fits even without the pose's and landmark's uncertainty, each its own,
         each seen lately: `is_recent`) needs no joint test, and gets none unless `full`."""
-        self.last_joint = None
         if not measurements or len(self.landmarks) == 0:
-            return [Candidates.none() for _ in measurements]
+            return [Candidates.none() for _ in measurements], None
         pose_cov = prediction.covariance(self.solver.marginal_covariance(prediction.anchor_key))
         if not (np.all(np.isfinite(pose_cov)) and np.all(np.isfinite(prediction.pose.matrix()))):
             raise SolverError(
@@ -260,33 +258,35 @@ class CandidateScorer:
             wanted = sorted({int(j) for s in screened if s.sure is None for j in s.ids})
             to_finish = [i for i, s in enumerate(screened) if s.sure is None]
         elif not full and _all_sure(screened, is_recent):
-            return [s.sure for s in screened]  # type: ignore[misc]
+            return [s.sure for s in screened], None  # type: ignore[misc]
         else:
             wanted = sorted({int(j) for s in screened for j in s.ids})
             to_finish = [i for i, s in enumerate(screened) if len(s.ids)]
-        joints = self._joints(prediction, wanted)
+        joints, keyframe_joint = self._joints(prediction, wanted)
         out = [s.sure if s.sure is not None else Candidates.none(s.searched) for s in screened]
         finished = self._finish(
             [measurements[i] for i in to_finish], [screened[i] for i in to_finish], joints
         )
         for i, candidates in zip(to_finish, finished, strict=True):
             out[i] = candidates
-        return out
+        return out, keyframe_joint
 
     def _joints(
         self, prediction: PosePrediction, landmark_ids: list[int]
-    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    ) -> tuple[dict[int, tuple[np.ndarray, np.ndarray]], KeyframeCovariance | None]:
         """(Sigma_xl, Sigma_ll) of the new pose and each landmark, from iSAM2's joint marginal
         of the anchor pose and the landmarks (one query); without joint marginals (config),
-        each landmark's marginal and no cross-covariance."""
+        each landmark's marginal and no cross-covariance. With `keep_joint`, also the new
+        pose's whole joint with the landmarks."""
         if not landmark_ids:
-            return {}
+            return {}, None
         out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        keyframe_joint = None
         if self.config.joint_marginals or self.keep_joint:
             keys = [L(j) for j in landmark_ids]
             joint = self.solver.joint_covariance([prediction.anchor_key, *keys])
             if self.keep_joint:
-                self.last_joint = self._transported(prediction, joint, landmark_ids)
+                keyframe_joint = self._transported(prediction, joint, landmark_ids)
             offset = 6
             for j in landmark_ids:
                 dim = 6 if self.landmarks.landmarks[j].kind is LandmarkKind.POSE else 3
@@ -299,7 +299,7 @@ class CandidateScorer:
                 out[j] = (np.zeros((6, sigma_ll.shape[0])), sigma_ll)
         for j, (_, sigma_ll) in out.items():
             self.landmarks.landmarks[j].covariance_bound = sigma_ll
-        return out
+        return out, keyframe_joint
 
     def _transported(
         self, prediction: PosePrediction, joint: np.ndarray, landmark_ids: list[int]
@@ -430,7 +430,6 @@ class CandidateScorer:
             residuals=s.residual[kept] if self.keep_joint else None,
             pose_jacobians=s.H_x[kept] if self.keep_joint else None,
             landmark_jacobians=s.H_l[kept] if self.keep_joint else None,
-            innovation_covariances=R[keep] if self.keep_joint else None,
         )
 
     @staticmethod

@@ -16,7 +16,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
-from pipeline.backend.candidates import covariance_bound
+from pipeline.backend.candidates import PosePrediction, covariance_bound
 from pipeline.backend.decisions import MeasurementSpace, in_view
 from pipeline.backend.geometry import world_point_covariance
 from pipeline.backend.joint_compatibility import (
@@ -186,12 +186,11 @@ class MergeFinder:
         # The newer landmark (larger id) is the source, merged into the older one.
         return sorted((b, a) for a, b in pairs)
 
-    def _landmarks_in_view(self) -> float:
+    def _landmarks_in_view(self, prediction: PosePrediction) -> float:
         """The mean number of mapped point landmarks in the sensor's view over the checks so
         far (at least 1), counting the one at this check's predicted pose. A source that is a
         duplicate is one of them: each pair's prior holds 1 / that mean (`partner_prior`)."""
-        prediction = self.context.prediction
-        if not self.config.partner_prior or prediction is None:
+        if not self.config.partner_prior:
             return 1.0
         _, high = self.space.box()
         pose = prediction.pose
@@ -217,13 +216,13 @@ class MergeFinder:
         """The landmark's marginal covariance, or an upper bound on it (`covariance_bound`)."""
         return covariance_bound(self.context.solver, self.context.landmarks, landmark_id)
 
-    def find(self, pose_index: int, odometry_scale: float = 1.0) -> list[tuple[int, int]]:
-        """(duplicate, survivor) pairs to merge now. The map's covariance holds the odometry's
-        at `odometry_scale` times the log's; a loop's test weighs a larger drift by what the
-        loops closed so far say (`DriftScaleBelief`), up to `max_drift_scale` times the
-        log's, and what it closes is added to that."""
+    def find(self, pose_index: int, prediction: PosePrediction) -> list[tuple[int, int]]:
+        """(duplicate, survivor) pairs to merge now, at the keyframe predicted by `prediction`
+        (where the sensor looks from). A loop's test weighs a drift larger than the map's
+        covariance holds by what the loops closed so far say (`DriftScaleBelief`), up to
+        `max_drift_scale` times it, and what it closes is added to that."""
         c = self.config
-        drift_scales = self.drift_belief.relative(odometry_scale)
+        drift_scales = self.drift_belief.scales, self.drift_belief.log_weights
         widest = float(np.max(drift_scales[0]))
         candidates = self.candidate_pairs(pose_index, widest)
         if not candidates:
@@ -277,7 +276,7 @@ class MergeFinder:
             return assoc.mahalanobis_squared(positions[x] - positions[y], C) <= gate
 
         lms = context.landmarks.landmarks
-        log_volume = self.space.log_world_volume() - math.log(self._landmarks_in_view())
+        log_volume = self.space.log_world_volume() - math.log(self._landmarks_in_view(prediction))
         log_prior = np.array(
             [
                 log_volume
@@ -315,6 +314,6 @@ class MergeFinder:
             )
             closed = [pair_set.pairs.index(pair) for pair in to_merge]
             if any(pair_set.loop[p] for p in closed):  # what this loop says of the drift
-                self.drift_belief.observe(odometry_scale, pair_set.scale_log_likelihoods(closed)[0])
+                self.drift_belief.observe(pair_set.scale_log_likelihoods(closed)[0])
             merged += to_merge
         return merged

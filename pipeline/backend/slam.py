@@ -2,14 +2,17 @@
 
 backend = Backend(config, confusion, "mm-nh")
 for odometry, detections in keyframes:
-    backend.add_keyframe(odometry, detections)
+    report = backend.add_keyframe(odometry, detections)
 result = backend.result()
+
+Each keyframe is one story (`add_keyframe`): predict the new pose from the odometry, score the
+landmarks each detection could be, associate (the method's step), update iSAM2, settle the
+associations the update moved, merge duplicated landmarks, learn the noise, and report.
 """
 
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass, field
 
 import gtsam
@@ -22,16 +25,11 @@ from pipeline.backend.hypotheses import AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
-from pipeline.backend.methods import BackendContext, make_method
-from pipeline.backend.noise import (
-    NoiseScales,
-    OdometryDrift,
-    OdometryScaleMove,
-    odometry_scale_move,
-    updated,
-)
+from pipeline.backend.methods import BackendContext, Keyframe, make_method
+from pipeline.backend.noise import HeldDetections, NoiseLearner, NoiseMove, NoiseScales
 from pipeline.backend.planar import planar_prior_factors
 from pipeline.backend.solver import Isam2Solver, SolverFallback, fallback_counts
+from pipeline.backend.view import ReadOnlyMap
 from pipeline.config import Config
 from pipeline.log.messages import Detection, Odometry
 
@@ -41,9 +39,10 @@ logger = logging.getLogger(__name__)
 INDEX_CELL_SIZE_M = 10.0
 
 
-@dataclass
+@dataclass(frozen=True)
 class KeyframeReport:
-    """What happened at one keyframe: for viewers, progress and benchmarks."""
+    """What happened at one keyframe: for viewers, progress and benchmarks. `map` is the
+    back-end's map as it stands after the keyframe, read-only."""
 
     pose_index: int
     records: list[AssociationRecord]
@@ -51,10 +50,10 @@ class KeyframeReport:
     # Associations this keyframe changed (once each): earlier detections', and its own where
     # refine moved them off their first choice. One that left and came back is not in it.
     switched: list[AssociationRecord]
-    seconds: float
-    merged: list[tuple[int, int]] = field(default_factory=list)  # (duplicate, survivor) ids
+    merged: list[tuple[int, int]]  # (duplicate, survivor) ids
     # Graphs Cholesky refused at this keyframe, and what the solver did (each one a bug)
-    solver_fallbacks: list[SolverFallback] = field(default_factory=list)
+    solver_fallbacks: list[SolverFallback]
+    map: ReadOnlyMap
 
 
 @dataclass
@@ -67,10 +66,9 @@ class BackendResult:
     switches: int = 0
     merges: int = 0
     noise: NoiseScales | None = None  # the noise scales at the end
-    odometry_moves: list[OdometryScaleMove] = field(default_factory=list)  # in order
+    noise_moves: list[NoiseMove] = field(default_factory=list)  # in order
     # what the loops closed by merges said of the odometry's scale (`DriftScaleBelief.report`)
     loop_drift: dict | None = None
-    step_seconds: list[float] = field(default_factory=list)
     solver_fallbacks: dict[str, int] = field(default_factory=dict)  # by kind
 
 
@@ -90,41 +88,205 @@ class Backend:
             confusion,
             config.association,
             self.method.wants_joint,
-            wide_gate=getattr(self.method, "wide_gate", False),
+            wide_gate=self.method.wide_gate,
         )
         self.merger = (
             MergeFinder(
                 self.context,
                 config.merges,
                 config.association.search_margin_m,
-                self.method.space[LandmarkKind.POINT],
+                self.context.space[LandmarkKind.POINT],
             )
-            if getattr(self.method, "merges_landmarks", False)
+            if self.method.merges_landmarks
             else None
         )
-        self.merges = 0
-        n = config.noise
-        # Only a method that estimates the measurement noise (its sure pairings) rescales.
-        self.estimates_noise = n.estimate and self.method.wants_joint
-        start = n.odometry_scale
-        if self.estimates_noise:  # from odometry_start_scale, never below its floor
-            start = max(n.odometry_start_scale, n.odometry_scale)
-        self.noise = NoiseScales(start, tuple(n.measurement_scale))
-        self.odometry_moves: list[OdometryScaleMove] = []  # in order
-        self.drift = (
-            OdometryDrift(n.drift_window, n.drift_windows, n.min_drift_windows, n.long_drift_window)
-            if self.estimates_noise
-            else None
-        )
+        # Only a method that associates keyframes jointly sees the sure pairings that tell the
+        # detections' noise: it alone learns the noise.
+        self.noise = NoiseLearner(config.noise, self.method.wants_joint, planar)
         self.records: list[AssociationRecord] = []
+        self._first_record: list[int] = []  # per pose, its first record's index in `records`
         # (handle, odometry) of each pose's odometry factor, while its scale may change
         self._odometry: list[tuple[int, Odometry]] = []
         self.num_poses = 0
         self.switches = 0
-        self.step_seconds: list[float] = []
+        self.merges = 0
         # (pose, detection) -> landmark as last reported: refine's rounds may switch a record
         # away and back within one keyframe, which is no change.
         self._reported: dict[tuple[int, int], int] = {}
+
+    def add_keyframe(
+        self, odometry: Odometry | None, detections: list[Detection]
+    ) -> KeyframeReport:
+        """Predict, score candidates, associate, update iSAM2, settle, merge, learn, report."""
+        fallbacks = len(self.solver.fallbacks)
+        prediction = self.predict(odometry)
+        keyframe = self.score(prediction, detections)
+        records = self.associate(keyframe)
+        switched = self.settle(self.solver.update())
+        merged = self.merge(prediction)
+        if merged:
+            switched += self.settle(self.solver.update())
+        if self.learn_noise(prediction.pose_index):
+            switched += self.settle(self.solver.update(anew=True))
+        return self.report(keyframe, records, switched, merged, fallbacks)
+
+    def predict(self, odometry: Odometry | None) -> PosePrediction:
+        """The new pose from the last one and the odometry; pose 0 is the origin."""
+        if (odometry is None) != (self.num_poses == 0):
+            raise ValueError("odometry is needed for every keyframe but the first")
+        index = self.num_poses
+        self.num_poses += 1
+        if odometry is None:
+            return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
+        step = pose_from_message(odometry.translation, odometry.rotation)
+        pose = self.solver.pose(X(index - 1)).compose(step)
+        handle, covariance = self._add_odometry(index - 1, odometry)
+        if self.noise.watches_drift:
+            self.noise.add_step(step, np.reshape(odometry.covariance, (6, 6)))
+            self._odometry.append((handle, odometry))
+        self.solver.insert(X(index), pose)
+        if self.planar:
+            p = self.config.prior
+            for factor in planar_prior_factors(
+                X(index), p.planar_height_sigma_m, p.planar_tilt_sigma_rad
+            ):
+                self.solver.add(factor)
+        return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
+
+    def score(self, prediction: PosePrediction, detections: list[Detection]) -> Keyframe:
+        """The keyframe's detections as measurements, at the noise scales learnt so far, and the
+        landmarks each could be (none for a method that is told)."""
+        use_pose = self.config.landmarks.use_relative_pose
+        scale = self.noise.scales.measurement_matrix()
+        measurements = [
+            make_measurement(prediction.pose_index, k, d, use_pose, scale)
+            for k, d in enumerate(detections)
+        ]
+        for m in measurements:
+            self.context.space[m.kind].observe(m.vector, m.covariance)
+        if not self.method.uses_candidates:
+            return Keyframe(prediction, measurements, [Candidates.none() for _ in measurements])
+        candidates, joint = self.scorer.score(
+            prediction,
+            measurements,
+            is_recent=lambda j: self.context.seen_lately(j, prediction.pose_index),
+        )
+        return Keyframe(prediction, measurements, candidates, joint)
+
+    def associate(self, keyframe: Keyframe) -> list[AssociationRecord]:
+        """The method's factors for the keyframe's detections, pending in iSAM2."""
+        records = self.method.associate_keyframe(keyframe)
+        self._first_record.append(len(self.records))
+        for r in records:
+            self.context.register(r)
+            self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
+        self.records.extend(records)
+        return records
+
+    def settle(self, marked: set[int]) -> list[AssociationRecord]:
+        """After an iSAM2 update that marked `marked`: the associations the move changed
+        (known association needs no revisits)."""
+        if not self.method.uses_candidates:
+            return []
+        return self.method.refine(self.context.after_update(marked))
+
+    def merge(self, prediction: PosePrediction) -> list[tuple[int, int]]:
+        """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""
+        pose_index = prediction.pose_index
+        if self.merger is None or pose_index % self.config.merges.every_keyframes:
+            return []
+        merged = self.merger.find(pose_index, prediction)
+        for duplicate, survivor in merged:
+            self.method.merge(survivor, duplicate)
+        self.merges += len(merged)
+        return merged
+
+    def learn_noise(self, pose_index: int) -> bool:
+        """The noise scales learnt anew; whether they moved (every factor of a kind that moved
+        is then reweighted, pending: the graph is to be solved anew)."""
+        change = self.noise.learn(pose_index, self.solver, self.held_detections)
+        if change.odometry:
+            for k, (handle, odometry) in enumerate(self._odometry):
+                self.solver.remove(handle)
+                self._odometry[k] = (self._add_odometry(k, odometry)[0], odometry)
+            if self.merger is not None:  # the loops said how far the old map was off
+                self.merger.drift_belief.restart()
+        if change.measurement:
+            self.method.restate(self.records, self.noise.scales.measurement_matrix())
+        if change:  # the whole map's uncertainty changes: the landmarks' bounds are forgotten
+            for landmark in self.landmarks.landmarks.values():
+                landmark.covariance_bound = None
+        return bool(change)
+
+    def held_detections(self, poses: range) -> list[HeldDetections]:
+        """Each keyframe's point detections that a landmark holds with others, at the current
+        estimate, for keyframes `poses` (those with none are left out)."""
+        held_by: dict[int, int] = {}  # landmark: how many detections it holds
+
+        def sightings(j: int) -> int:
+            if j not in held_by:
+                held_by[j] = len(self.context.held_detections(j))
+            return held_by[j]
+
+        chosen = []
+        for i in poses:
+            end = self._first_record[i + 1] if i + 1 < len(self._first_record) else None
+            held = [
+                r
+                for r in self.records[self._first_record[i] : end]
+                if r.landmark_id >= 0
+                and r.measurement.kind is LandmarkKind.POINT
+                and sightings(r.landmark_id) >= 2
+            ]
+            if len(held) >= 2:
+                chosen.append((i, held))
+        if not chosen:
+            return []
+        ids = sorted({r.landmark_id for _, held in chosen for r in held})
+        keys = [X(i) for i, _ in chosen] + [L(j) for j in ids]
+        order = np.argsort(keys)
+        rows = np.empty((len(keys), 12))
+        rows[order] = self.solver.flat_estimates(
+            [keys[k] for k in order], np.array([k < len(chosen) for k in order])
+        )
+        point = {j: rows[len(chosen) + n, 9:] for n, j in enumerate(ids)}
+        out = []
+        for n, (_, held) in enumerate(chosen):
+            ms = [r.measurement for r in held]
+            out.append(
+                HeldDetections(
+                    rows[n, :9].reshape(3, 3),
+                    rows[n, 9:],
+                    np.array([point[r.landmark_id] for r in held]),
+                    np.array([m.vector for m in ms]),
+                    np.array([np.reshape(m.detection.covariance, (3, 3)) for m in ms]),
+                    np.array([sightings(r.landmark_id) for r in held]),
+                )
+            )
+        return out
+
+    def report(
+        self,
+        keyframe: Keyframe,
+        records: list[AssociationRecord],
+        switched: list[AssociationRecord],
+        merged: list[tuple[int, int]],
+        fallbacks_before: int,
+    ) -> KeyframeReport:
+        """The keyframe's report; the associations it changed are counted and seen."""
+        switched = self._changed(switched)
+        for record in switched:
+            self.context.seen(record)
+        self.switches += len(switched)
+        return KeyframeReport(
+            keyframe.prediction.pose_index,
+            records,
+            keyframe.candidates,
+            switched,
+            merged,
+            self.solver.fallbacks[fallbacks_before:],
+            ReadOnlyMap(self.solver, self.landmarks, self.switches, self.merges),
+        )
 
     def _add_origin(self) -> gtsam.Pose3:
         p = self.config.prior
@@ -136,86 +298,6 @@ class Backend:
         self.solver.insert(X(0), origin)
         self.solver.update()
         return origin
-
-    def predict(self, odometry: Odometry | None) -> PosePrediction:
-        """The new pose from the last one and the odometry; pose 0 is the origin."""
-        index = self.num_poses
-        if odometry is None:
-            return PosePrediction(index, X(0), self._add_origin(), np.eye(6), np.zeros((6, 6)))
-        step = pose_from_message(odometry.translation, odometry.rotation)
-        pose = self.solver.pose(X(index - 1)).compose(step)
-        handle, covariance = self._add_odometry(index - 1, odometry)
-        if self.drift is not None:
-            self.drift.add_step(step, np.reshape(odometry.covariance, (6, 6)))
-            self._odometry.append((handle, odometry))
-        self.solver.insert(X(index), pose)
-        if self.planar:
-            p = self.config.prior
-            for factor in planar_prior_factors(
-                X(index), p.planar_height_sigma_m, p.planar_tilt_sigma_rad
-            ):
-                self.solver.add(factor)
-        return PosePrediction(index, X(index - 1), pose, step.inverse().AdjointMap(), covariance)
-
-    def add_keyframe(
-        self, odometry: Odometry | None, detections: list[Detection]
-    ) -> KeyframeReport:
-        """Predict, score candidates, choose factors, update iSAM2, revisit associations."""
-        start = time.perf_counter()
-        fallbacks_before = len(self.solver.fallbacks)
-        if (odometry is None) != (self.num_poses == 0):
-            raise ValueError("odometry is needed for every keyframe but the first")
-        prediction = self.predict(odometry)
-        self.context.prediction = prediction
-        point_scale = self.noise.measurement_matrix()
-        use_pose = self.config.landmarks.use_relative_pose
-        measurements = [
-            make_measurement(prediction.pose_index, k, d, use_pose, point_scale)
-            for k, d in enumerate(detections)
-        ]
-        if self.method.uses_candidates:
-            n = self.config.noise
-            candidates = self.scorer.score(
-                prediction,
-                measurements,
-                is_recent=lambda j: self.context.seen_lately(j, prediction.pose_index),
-                # now and then the whole joint test, so that sure pairings tell the noise too
-                full=n.estimate and prediction.pose_index % n.sample_every == 0,
-            )
-        else:
-            candidates = [Candidates.none() for _ in measurements]
-        self.context.keyframe_covariance = self.scorer.last_joint
-        records = self.method.associate_keyframe(measurements, candidates)
-        for record in records:
-            self.context.register(record)
-        self.records.extend(records)
-        for r in records:
-            self._reported[r.measurement.pose_index, r.measurement.detection_index] = r.landmark_id
-        self.num_poses += 1
-        marked = self.solver.update()
-        switched: list[AssociationRecord] = []
-        if self.method.uses_candidates:  # known association needs no map search or revisits
-            switched = self.method.refine(self.context.after_update(marked))
-        merged = self.merge(prediction.pose_index)
-        if merged:
-            switched += self.method.refine(self.context.after_update(self.solver.update()))
-        if self._rescale_noise(prediction.pose_index):
-            switched += self.method.refine(self.context.after_update(self.solver.update(anew=True)))
-        switched = self._changed(switched)
-        for record in switched:
-            self.context.seen(record)
-        self.switches += len(switched)
-        seconds = time.perf_counter() - start
-        self.step_seconds.append(seconds)
-        return KeyframeReport(
-            prediction.pose_index,
-            records,
-            candidates,
-            switched,
-            seconds,
-            merged,
-            self.solver.fallbacks[fallbacks_before:],
-        )
 
     def _changed(self, switched: list[AssociationRecord]) -> list[AssociationRecord]:
         """The records among `switched` whose landmark now differs from the one last reported
@@ -232,101 +314,11 @@ class Backend:
                 changed.append(r)
         return changed
 
-    def _rescale_noise(self, pose_index: int) -> bool:
-        """Every few keyframes, the noise scales corrected: the measurement's by the latest
-        sure pairings, the odometry's by its drift against the estimate or by the loops closed
-        so far. Whether the odometry's changed (every odometry factor is then reweighted,
-        pending: the graph is to be solved anew)."""
-        n = self.config.noise
-        if not self.estimates_noise or pose_index % n.update_every:
-            return False
-        measurement = self.context.innovations.corrections()
-        if measurement is not None:
-            self.noise = updated(self.noise, measurement, (n.min_scale, n.max_scale), n.max_step)
-            self.context.innovations.clear()  # they were whitened with the scales replaced
-        logger.debug("pose %d: noise scales %s", pose_index, self.noise)
-        moves = self._odometry_moves(pose_index)
-        if not moves:
-            return False
-        move = max(moves, key=lambda m: m.after)
-        self.odometry_moves.append(move)
-        logger.debug(
-            "pose %d: odometry scale %.3g -> %.3g (%s, %.1f nats)",
-            pose_index,
-            move.before,
-            move.after,
-            move.source,
-            move.evidence,
-        )
-        self.noise = NoiseScales(move.after, self.noise.measurement)
-        self._reweight_odometry()
-        return True
-
-    def _odometry_moves(self, pose_index: int) -> list[OdometryScaleMove]:
-        """The clear moves (`odometry_scale_move`) of the odometry's scale that the drift
-        windows ending now and the loops the merges closed so far say (the loops' only up: a
-        loop that closes at the current scale says little of a smaller one)."""
-        n, current = self.config.noise, self.noise.odometry
-        readings = []
-        windows = self._drift_reading(pose_index)
-        if windows is not None:
-            # Down only to undo a start set above the floor (odometry_scale): once the windows
-            # have raised the scale, a map bent by the loops it let close reads unevenly, and
-            # coming down again made kitti05-cars (noise x3, calibrated, seed 5) 10.4 -> 16.6 m.
-            down = not any(m.after > m.before for m in self.odometry_moves)
-            readings.append(("windows", *windows, down))
-        if n.scale_from_loops and self.merger is not None:
-            loops = self.merger.drift_belief.reading(current)
-            if loops is not None:
-                readings.append(("loops", min(loops[0], n.max_scale), loops[1], False))
-        moves = []
-        for source, scale, evidence, down in readings:
-            after = odometry_scale_move(
-                current, scale, evidence, n.drift_deadband, n.drift_evidence, down=down
-            )
-            if after is not None:
-                moves.append(OdometryScaleMove(pose_index, current, after, evidence, source))
-        return moves
-
-    def _drift_reading(self, pose_index: int) -> tuple[float, float] | None:
-        """The odometry's scale its windows say and their evidence, with the windows ending
-        now."""
-        if self.drift is None:
-            return None
-        n = self.config.noise
-        last = X(pose_index)
-        last_pose = self.solver.pose(last)
-        for length in self.drift.due(pose_index, n.update_every):
-            first = X(pose_index - length)
-            relative = self.solver.pose(first).between(last_pose)
-            joint = self.solver.joint_covariance([first, last])
-            self.drift.observe(relative, joint, self.noise.odometry, length)
-        return self.drift.reading((n.odometry_scale, n.max_scale))
-
     def _add_odometry(self, k: int, odometry: Odometry) -> tuple[int, np.ndarray]:
         """The factor of `odometry` from pose k to k + 1, its stated covariance at the
         odometry's current scale, added to the solver: (its handle, that covariance)."""
-        covariance = self.noise.odometry * np.reshape(odometry.covariance, (6, 6))
+        covariance = self.noise.scales.odometry_covariance(np.reshape(odometry.covariance, (6, 6)))
         return self.solver.add(odometry_factor(X(k), X(k + 1), odometry, covariance)), covariance
-
-    def _reweight_odometry(self) -> None:
-        """Every odometry factor again with the odometry's current scale. The whole map's
-        uncertainty changes with it: the landmarks' covariance bounds are forgotten."""
-        for k, (handle, odometry) in enumerate(self._odometry):
-            self.solver.remove(handle)
-            self._odometry[k] = (self._add_odometry(k, odometry)[0], odometry)
-        for landmark in self.landmarks.landmarks.values():
-            landmark.covariance_bound = None
-
-    def merge(self, pose_index: int) -> list[tuple[int, int]]:
-        """Merge duplicated landmarks (every few keyframes); the merges stay pending in iSAM2."""
-        if self.merger is None or pose_index % self.config.merges.every_keyframes:
-            return []
-        merged = self.merger.find(pose_index, self.noise.odometry)
-        for duplicate, survivor in merged:
-            self.method.merge(survivor, duplicate)
-        self.merges += len(merged)
-        return merged
 
     def result(self) -> BackendResult:
         self.method.finish()
@@ -347,9 +339,8 @@ class Backend:
             landmarks=self.landmarks,
             switches=self.switches,
             merges=self.merges,
-            noise=self.noise,
-            odometry_moves=self.odometry_moves,
+            noise=self.noise.scales,
+            noise_moves=self.noise.moves,
             loop_drift=None if self.merger is None else self.merger.drift_belief.report(),
-            step_seconds=self.step_seconds,
             solver_fallbacks=fallback_counts(self.solver.fallbacks),
         )

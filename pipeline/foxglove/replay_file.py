@@ -33,7 +33,7 @@ from pipeline.log.writer import mcap_writer
 from pipeline.outputs import AtomicFile
 
 if TYPE_CHECKING:
-    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.backend.slam import BackendResult, KeyframeReport
     from pipeline.log.messages import DetectionLog
 
 ESTIMATE = "estimate"
@@ -70,7 +70,7 @@ class FoxgloveSink:
         self.class_names = log.metadata.class_names
         self.method = method
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None:
         """Null wins and switches, told as they happen (the records change later): every
         switch the back-end counts, an earlier detection's or one of this keyframe's own,
         moved off its first choice by the keyframe's update (that choice is not kept)."""

@@ -20,7 +20,8 @@ from pipeline.viz import entities as e
 from pipeline.viz.correctness import WRONG, verdicts
 
 if TYPE_CHECKING:
-    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.backend.slam import BackendResult, KeyframeReport
+    from pipeline.backend.view import ReadOnlyMap
 
 # Relative change of a landmark's covariance worth logging again (about 2.5 % in its axes).
 ELLIPSOID_TOLERANCE = 0.05
@@ -58,10 +59,10 @@ class MapView:
     """The map's part of `RerunSink` (its state is the sink's)."""
 
     def _fetch(
-        self, backend: Backend, pose_indices: set[int], landmark_ids: set[int]
+        self, view: ReadOnlyMap, pose_indices: set[int], landmark_ids: set[int]
     ) -> tuple[dict[int, np.ndarray], dict[int, np.ndarray]]:
         """Estimates as rows [R (9), t (3)], in one iSAM2 call."""
-        landmarks = backend.landmarks.landmarks
+        landmarks = view.landmarks.landmarks
         keyed = {X(i): (True, i) for i in pose_indices}
         keyed.update({L(j): (False, j) for j in landmark_ids})
         keys = sorted(keyed)
@@ -69,7 +70,7 @@ class MapView:
             [keyed[k][0] or landmarks[keyed[k][1]].kind is LandmarkKind.POSE for k in keys],
             dtype=bool,
         )
-        rows = backend.solver.flat_estimates(keys, is_pose3)
+        rows = view.flat_estimates(keys, is_pose3)
         poses, points = {}, {}
         for key, row in zip(keys, rows, strict=True):
             is_robot, index = keyed[key]
@@ -148,12 +149,12 @@ class MapView:
             ),
         )
 
-    def _refresh(self, backend: Backend, pose_index: int) -> None:
+    def _refresh(self, view: ReadOnlyMap, pose_index: int) -> None:
         """Send the held rows; then the whole trajectory, and every landmark that moved or
         changed class since it was shown."""
         self._held.send(self.rec, e.ROBOT)
-        ids = set(backend.landmarks.landmarks)
-        poses, points = self._fetch(backend, set(range(pose_index + 1)), ids)
+        ids = set(view.landmarks.landmarks)
+        poses, points = self._fetch(view, set(range(pose_index + 1)), ids)
         positions = [poses[i][9:] for i in range(pose_index + 1)]
         self.rec.log(e.TRAJECTORY, self._trajectory(positions, draw.ESTIMATE_RGB, "estimate"))
         self.rec.log(e.TRAJECTORY_RECENT, rr.Clear(recursive=False))
@@ -167,12 +168,12 @@ class MapView:
             before = np.array([self._landmarks[j].position for j in shown])
             moved = np.linalg.norm(now - before, axis=1) > self.config.refresh_move_m
             for j in np.array(shown)[moved]:
-                self._log_landmark(backend.landmarks, int(j), points[int(j)], None)
+                self._log_landmark(view.landmarks, int(j), points[int(j)], None)
         for j in sorted(ids - set(shown)):
-            self._log_landmark(backend.landmarks, j, points[j], None)
+            self._log_landmark(view.landmarks, j, points[j], None)
         self._log_uncertainty()
         if self._tally is not None:
-            resolve = backend.landmarks.resolve
+            resolve = view.landmarks.resolve
             self._log_wrong(
                 [(key, resolve(j)) for key, j in self._tally.wrong()],
                 lambda k: poses[k][9:],

@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import rerun as rr
-from gtsam.symbol_shorthand import L
 
 from pipeline.backend.hypotheses import NULL
 from pipeline.log.schemas import LEFT_IMAGE
@@ -47,7 +46,8 @@ from pipeline.viz.stream import Destination
 from pipeline.viz.summary import summary_markdown
 
 if TYPE_CHECKING:
-    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.backend.slam import BackendResult, KeyframeReport
+    from pipeline.backend.view import ReadOnlyMap
     from pipeline.log.messages import CompressedImage, DetectionLog, LogMetadata
     from pipeline.viz.frontend import FrontendKeyframe
 
@@ -84,7 +84,7 @@ class RerunSink(MapView, ImageView, RecordingBase):
         self._winners: dict[tuple[int, int], int] = {}  # (pose, detection) -> landmark shown
         self._null_count = 0
         self._changes: dict[tuple[int, int], int] = defaultdict(int)  # per detection, as shown
-        self._backend: Backend | None = None
+        self._view: ReadOnlyMap | None = None  # the back-end's map, from the latest keyframe
         self._method = ""
         self._step_ms: list[float] = []  # per keyframe, for the trailing medians
         self._viz_ms: list[float] = []
@@ -171,9 +171,9 @@ class RerunSink(MapView, ImageView, RecordingBase):
                 )
         self._trail_style(e.TRAJECTORY_RECENT)
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None:
         started = time.perf_counter()
-        self._backend = backend
+        view = self._view = report.map
         i = report.pose_index
         stamp = self._stamp(i)
         self._set_time(i, stamp)
@@ -185,14 +185,14 @@ class RerunSink(MapView, ImageView, RecordingBase):
             shown = self._landmarks.pop(duplicate, None)
             if shown is not None:
                 merged_from[duplicate] = shown.position
-        self._judge(report, backend.landmarks.resolve)
+        self._judge(report, view.landmarks.resolve)
         # Landmark ids are never reused: ids from the next one before this keyframe are new.
         hypotheses = [
             draw.detection_hypotheses(r, c, r.landmark_id >= self._landmark_total)
             for r, c in zip(report.records, report.candidates, strict=True)
         ]
-        self._landmark_total = backend.landmarks.next_id
-        resolve = backend.landmarks.resolve
+        self._landmark_total = view.landmarks.next_id
+        resolve = view.landmarks.resolve
         hypotheses = [
             [
                 dataclasses.replace(h, landmark_id=resolve(h.landmark_id))
@@ -218,7 +218,7 @@ class RerunSink(MapView, ImageView, RecordingBase):
             touched.update(record.landmark_ids)
         touched.update(survivor for _, survivor in report.merged)
         pose_indices = {i} | {r.measurement.pose_index for r in report.switched}
-        poses, points = self._fetch(backend, pose_indices, touched)
+        poses, points = self._fetch(view, pose_indices, touched)
 
         row = poses[i]
         pose = np.eye(4)
@@ -226,7 +226,7 @@ class RerunSink(MapView, ImageView, RecordingBase):
         self._held.poses.append((i, stamp, pose))
         self._positions.append(row[9:].copy())
         if i - self._refreshed_at >= self.config.refresh_every:
-            self._refresh(backend, i)
+            self._refresh(view, i)
         elif i > self._refreshed_at:
             recent = np.array(self._positions[self._refreshed_at :])
             self._held.strips[e.TRAJECTORY_RECENT].append((i, stamp, recent))
@@ -235,36 +235,36 @@ class RerunSink(MapView, ImageView, RecordingBase):
             # The association step computed the marginal of every candidate it weighed with
             # joint marginals this keyframe (before the update); otherwise its last one, an
             # upper bound. A new landmark has none yet.
-            covariance = backend.landmarks.landmarks[j].covariance_bound
+            covariance = view.landmark_covariance(j)
             if self.config.keyframe_marginals or covariance is None:
-                covariance = backend.solver.marginal_covariance(L(j))
-            self._log_landmark(backend.landmarks, j, points[j], covariance, unless_unchanged=True)
+                covariance = view.landmark_covariance(j, fresh=True)
+            self._log_landmark(view.landmarks, j, points[j], covariance, unless_unchanged=True)
 
-        self._log_hypotheses(report.records, hypotheses, row, points, backend.landmarks)
+        self._log_hypotheses(report.records, hypotheses, row, points, view.landmarks)
         self._drawn |= legend.drawn_marks(hypotheses)
         # a switch is drawn for an earlier keyframe's detection only (`map_view`)
         earlier = any(r.measurement.pose_index != report.pose_index for r in report.switched)
         self._drawn |= {legend.SWITCH} if earlier else set()
         self._drawn |= {legend.MERGE} if report.merged else set()
         self._log_associations(report, poses, points)
-        self._log_merges(report.merged, merged_from, points, backend.landmarks.resolve)
+        self._log_merges(report.merged, merged_from, points, view.landmarks.resolve)
         self._log_image(i, [(r.measurement.detection, r.landmark_id) for r in report.records])
 
         held = self._held.scalars
         error = float(np.linalg.norm(row[9:] - self._truth[i])) if i in self._truth else None
         if error is not None:
             held[e.ERROR_ONLINE].append((i, stamp, error))
-        held[e.LANDMARK_COUNT].append((i, stamp, len(backend.landmarks)))
-        held[e.SWITCH_COUNT].append((i, stamp, backend.switches))
-        held[e.MERGE_COUNT].append((i, stamp, backend.merges))
+        held[e.LANDMARK_COUNT].append((i, stamp, len(view.landmarks)))
+        held[e.SWITCH_COUNT].append((i, stamp, view.switches))
+        held[e.MERGE_COUNT].append((i, stamp, view.merges))
         if self._tally is not None:
             held[e.WRONG_COUNT].append((i, stamp, self._tally.counts()[WRONG]))
         rate = self._null_count / len(self._winners) if self._winners else 0.0
         held[e.NULL_RATE].append((i, stamp, rate))
-        state = self._state(i, len(backend.landmarks), backend.switches, error_m=error)
+        state = self._state(i, len(view.landmarks), view.switches, error_m=error)
         self._held.markdown[e.SUMMARY].append((i, stamp, summary_markdown(state)))
         window = self.config.smoothing_window
-        self._step_ms.append(1e3 * report.seconds)
+        self._step_ms.append(1e3 * seconds)
         held[e.STEP_MS].append((i, stamp, draw.trailing_median(self._step_ms, window)))
         self._viz_ms.append(1e3 * (time.perf_counter() - started))
         held[e.VIZ_MS].append((i, stamp, draw.trailing_median(self._viz_ms, window)))
@@ -279,9 +279,9 @@ class RerunSink(MapView, ImageView, RecordingBase):
         rows = np.array([flat_row(p) for p in result.poses])
         self.rec.log(e.TRAJECTORY, self._trajectory(rows[:, 9:], draw.ESTIMATE_RGB, "estimate"))
         self.rec.log(e.TRAJECTORY_RECENT, rr.Clear(recursive=False))
-        fresh = self.config.final_marginals and self._backend is not None
+        view = self._view if self.config.final_marginals else None
         for j, value in zip(result.landmark_ids, result.landmark_values, strict=True):
-            covariance = self._backend.solver.marginal_covariance(L(j)) if fresh else None
+            covariance = view.landmark_covariance(j, fresh=True) if view is not None else None
             self._log_landmark(result.landmarks, j, flat_row(value), covariance)
         self._log_uncertainty()
 

@@ -5,16 +5,19 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
-    from pipeline.backend.slam import Backend, BackendResult, KeyframeReport
+    from pipeline.backend.slam import BackendResult, KeyframeReport
     from pipeline.log.messages import DetectionLog
 
 
 class Sink(Protocol):
+    """Sees a replay: its log, each keyframe's report (with the back-end's map, read-only)
+    and the seconds the back-end took for it, then the result."""
+
     wants_images: bool  # replay loads the log's images only for a sink that shows them
 
     def start(self, log: DetectionLog, method: str) -> None: ...
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None: ...
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None: ...
 
     def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None: ...
 
@@ -29,7 +32,7 @@ class NullSink:
     def start(self, log: DetectionLog, method: str) -> None:
         pass
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None:
         pass
 
     def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
@@ -50,9 +53,9 @@ class TeeSink:
         for sink in self.sinks:
             sink.start(log, method)
 
-    def keyframe(self, report: KeyframeReport, backend: Backend) -> None:
+    def keyframe(self, report: KeyframeReport, seconds: float) -> None:
         for sink in self.sinks:
-            sink.keyframe(report, backend)
+            sink.keyframe(report, seconds)
 
     def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
         for sink in self.sinks:

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from pipeline.backend.methods.base import AssociationMethod, BackendContext
+from pipeline.backend.methods.base import AssociationMethod, BackendContext, Keyframe
 from pipeline.backend.methods.dcsam import DiscreteContinuous
 from pipeline.backend.methods.gpda import GaussianPDA
 from pipeline.backend.methods.known import KnownAssociation
@@ -11,6 +11,8 @@ from pipeline.backend.methods.maxmixture import MaxMixture
 from pipeline.backend.methods.ml import MaximumLikelihood
 
 METHODS = ("known", "ml", "gpda", "mm", "mm-nh", "dcsam")
+
+__all__ = ["METHODS", "AssociationMethod", "BackendContext", "Keyframe", "make_method"]
 
 
 def make_method(name: str, context: BackendContext) -> AssociationMethod:

@@ -12,26 +12,35 @@ from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import class_posterior_update
 from pipeline.backend.candidates import Candidates, KeyframeCovariance, PosePrediction
-from pipeline.backend.decisions import null_cost
+from pipeline.backend.decisions import MeasurementSpace, null_cost
 from pipeline.backend.hypotheses import AssociationRecord, EstimateCache
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import Measurement
 from pipeline.backend.movement import MovementTracker, is_landmark_key, key_index
-from pipeline.backend.noise import ScaleEstimator
 from pipeline.backend.solver import Isam2Solver, movement_thresholds
 from pipeline.config import Config
 
 
+@dataclass(frozen=True)
+class Keyframe:
+    """The keyframe being added, as the association step gets it: its predicted pose, its
+    detections as measurements, each one's candidates and, for a method that associates the
+    keyframe jointly, the new pose's joint covariance with every candidate."""
+
+    prediction: PosePrediction
+    measurements: list[Measurement]
+    candidates: list[Candidates]
+    joint: KeyframeCovariance | None = None
+
+
 @dataclass
 class BackendContext:
-    """The state the methods read and edit: solver, landmarks, the keyframe being added."""
+    """The state the methods read and edit: solver, landmarks, what detections have shown."""
 
     solver: Isam2Solver
     landmarks: LandmarkMap
     confusion: np.ndarray
     config: Config
-    prediction: PosePrediction | None = None
-    keyframe_covariance: KeyframeCovariance | None = None  # of the keyframe being added
     movement: MovementTracker = field(init=False)
     # Every record that has a landmark among its components, by landmark id.
     records_of: dict[int, list[AssociationRecord]] = field(
@@ -41,13 +50,12 @@ class BackendContext:
     # Landmarks seen or moved since the last merge check: the only ones whose merge test can
     # have changed.
     changed: set[int] = field(init=False, default_factory=set)
-    # Sure pairings' innovations, for the noise scales (`noise.py`): point detections only.
-    innovations: ScaleEstimator = field(init=False)
+    # Where each kind of detection falls: where a landmark not mapped yet could be.
+    space: dict[LandmarkKind, MeasurementSpace] = field(init=False)
 
     def __post_init__(self) -> None:
         self.movement = MovementTracker(movement_thresholds(self.config.isam2))
-        n = self.config.noise
-        self.innovations = ScaleEstimator(3, n.window, n.min_pairings, (n.min_scale, n.max_scale))
+        self.space = {kind: MeasurementSpace() for kind in LandmarkKind}
 
     def register(self, record: AssociationRecord) -> None:
         """Index a new record by the landmarks it may be; the one it is was seen now."""
@@ -76,10 +84,10 @@ class BackendContext:
         """Pose indices of the detections now associated with the landmark."""
         return {m.pose_index for m in self.held_detections(landmark_id)}
 
-    def create_landmark(self, m: Measurement, pose: gtsam.Pose3 | None = None) -> int:
-        """A new landmark initialised from the detection seen from `pose` (by default the
-        keyframe's prediction), with its class evidence; its factor is the caller's."""
-        value = m.initial_landmark(self.prediction.pose if pose is None else pose)
+    def create_landmark(self, m: Measurement, pose: gtsam.Pose3) -> int:
+        """A new landmark initialised from the detection seen from `pose`, with its class
+        evidence; its factor is the caller's."""
+        value = m.initial_landmark(pose)
         position = value.translation() if hasattr(value, "translation") else value
         landmark = self.landmarks.create(m.kind, position)
         self.solver.insert(L(landmark.id), value)
@@ -154,29 +162,38 @@ class BackendContext:
 
 
 class AssociationMethod(ABC):
-    """Turns a detection and its scored candidates into factors, and keeps them right."""
+    """Turns a detection and its scored candidates into factors, and keeps them right.
+
+    What a method is, the back-end reads off these traits (a subclass overrides them):
+    - `uses_candidates`: it scores the landmarks a detection could be (known is told);
+    - `wants_joint`: it associates a keyframe's detections jointly, and needs the keyframe's
+      joint covariance and every candidate's residual (`Keyframe.joint`); such a method also
+      sees the sure pairings that tell the noise (`noise.py`);
+    - `wide_gate`: its candidates pass the joint test's wider gate, though it decides alone;
+    - `merges_landmarks`: duplicated landmarks are merged (`merges.py`), by `merge`."""
 
     name: str = ""
     uses_candidates: bool = True
+    wants_joint: bool = False
+    wide_gate: bool = False
+    merges_landmarks: bool = False
 
     def __init__(self, context: BackendContext):
         self.context = context
         self.config = context.config
 
     @abstractmethod
-    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+    def associate(
+        self, m: Measurement, candidates: Candidates, keyframe: Keyframe
+    ) -> AssociationRecord:
         """Add the detection's factors (pending in the solver) and return its record."""
 
-    def associate_keyframe(
-        self, measurements: list[Measurement], candidates: list[Candidates]
-    ) -> list[AssociationRecord]:
+    def associate_keyframe(self, keyframe: Keyframe) -> list[AssociationRecord]:
         """All the detections of one keyframe; by default one at a time."""
-        return [self.associate(m, c) for m, c in zip(measurements, candidates, strict=True)]
-
-    @property
-    def wants_joint(self) -> bool:
-        """Whether `associate_keyframe` needs the keyframe's joint covariance."""
-        return False
+        return [
+            self.associate(m, c, keyframe)
+            for m, c in zip(keyframe.measurements, keyframe.candidates, strict=True)
+        ]
 
     def refine(self, moved: set[int]) -> list[AssociationRecord]:
         """After an iSAM2 update that moved `moved`: revisit associations; returns the records
@@ -186,13 +203,24 @@ class AssociationMethod(ABC):
     def finish(self) -> None:  # noqa: B027 - most methods have nothing to settle
         """Settle the final associations once every keyframe is in."""
 
+    def merge(self, survivor: int, duplicate: int) -> None:
+        """Make `duplicate` one with `survivor` (for a method that `merges_landmarks`)."""
+        raise NotImplementedError(f"{self.name} does not merge landmarks")
+
+    def restate(self, records: list[AssociationRecord], scale: np.ndarray) -> None:
+        """Every factor of `records` again with the detections' covariance at `scale` (the
+        noise scales learnt: `noise.NoiseScales.measurement_matrix`), pending in the solver;
+        for a method that `wants_joint`, the one that learns the noise."""
+        raise NotImplementedError(f"{self.name} does not learn the noise")
+
     def single(self, m: Measurement, landmark_id: int, weight: float = 1.0) -> AssociationRecord:
         """A plain association: one factor to one landmark."""
         handle = self.context.add_factor(m, landmark_id)
         return AssociationRecord(m, [landmark_id], np.array([weight]), handles=[handle])
 
-    def new_landmark(self, m: Measurement) -> AssociationRecord:
-        landmark_id = self.context.create_landmark(m)
+    def new_landmark(self, m: Measurement, keyframe: Keyframe) -> AssociationRecord:
+        """A landmark of its own, seen from the keyframe's predicted pose."""
+        landmark_id = self.context.create_landmark(m, keyframe.prediction.pose)
         return self.single(m, landmark_id)
 
 

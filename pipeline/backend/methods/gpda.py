@@ -14,16 +14,18 @@ import numpy as np
 from pipeline.backend.candidates import Candidates
 from pipeline.backend.hypotheses import AssociationRecord, component_mahalanobis
 from pipeline.backend.measurements import Measurement
-from pipeline.backend.methods.base import MixtureMethod
+from pipeline.backend.methods.base import Keyframe, MixtureMethod
 from pipeline.backend.mixture import em_weights
 
 
 class GaussianPDA(MixtureMethod):
     name = "gpda"
 
-    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+    def associate(
+        self, m: Measurement, candidates: Candidates, keyframe: Keyframe
+    ) -> AssociationRecord:
         if len(candidates) == 0:
-            return self.new_landmark(m)
+            return self.new_landmark(m, keyframe)
         ids = [int(j) for j in candidates.landmark_ids]
         self.context.observe_classes(m, ids, candidates.weights)
         # The record's fixed `weights` hold the semantic likelihoods: the E-step's prior.

@@ -7,7 +7,7 @@ import numpy as np
 from pipeline.backend.candidates import Candidates
 from pipeline.backend.hypotheses import NULL, AssociationRecord
 from pipeline.backend.measurements import Measurement
-from pipeline.backend.methods.base import AssociationMethod, BackendContext
+from pipeline.backend.methods.base import AssociationMethod, BackendContext, Keyframe
 from pipeline.errors import InputError
 
 
@@ -19,7 +19,9 @@ class KnownAssociation(AssociationMethod):
         super().__init__(context)
         self._landmark_of_truth: dict[int, int] = {}
 
-    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+    def associate(
+        self, m: Measurement, candidates: Candidates, keyframe: Keyframe
+    ) -> AssociationRecord:
         truth = m.detection.truth_landmark_id
         if truth is None:
             raise InputError(
@@ -32,6 +34,6 @@ class KnownAssociation(AssociationMethod):
             landmark_id = self._landmark_of_truth[truth]
             self.context.observe_classes(m, [landmark_id], np.ones(1))
             return self.single(m, landmark_id)
-        record = self.new_landmark(m)
+        record = self.new_landmark(m, keyframe)
         self._landmark_of_truth[truth] = record.landmark_ids[0]
         return record

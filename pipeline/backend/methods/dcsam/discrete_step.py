@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from pipeline.backend.dcsam_model import mode_probabilities
+from pipeline.backend.methods.dcsam.model import mode_probabilities
 
 
 @dataclass(frozen=True)

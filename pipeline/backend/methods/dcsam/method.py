@@ -32,20 +32,19 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, X
 
-from pipeline.backend import discrete_step
 from pipeline.backend.candidates import Candidates, PosePrediction
-from pipeline.backend.dcsam_model import (
+from pipeline.backend.hypotheses import NULL, AssociationRecord
+from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.measurements import Measurement
+from pipeline.backend.methods.base import BackendContext, Keyframe, MixtureMethod
+from pipeline.backend.methods.dcsam import discrete_step
+from pipeline.backend.methods.dcsam.model import (
     class_log_evidence,
     class_posterior,
     geometric_weights,
     mode_constants,
     new_landmark_log_volume,
 )
-from pipeline.backend.decisions import MeasurementSpace
-from pipeline.backend.hypotheses import NULL, AssociationRecord
-from pipeline.backend.landmarks import LandmarkKind
-from pipeline.backend.measurements import Measurement
-from pipeline.backend.methods.base import BackendContext, MixtureMethod
 
 
 @dataclass
@@ -80,7 +79,6 @@ class DiscreteContinuous(MixtureMethod):
         super().__init__(context)
         self.null_weight = self.config.association.null_weight
         self.new_weight = self.config.dcsam.new_landmark_weight
-        self.space = {kind: MeasurementSpace() for kind in LandmarkKind}
         self.num_classes = context.confusion.shape[0]
         # Per landmark: how many detections hold it, and how many reported each class.
         self.holders: dict[int, int] = defaultdict(int)
@@ -90,28 +88,27 @@ class DiscreteContinuous(MixtureMethod):
         """The null mode's cost: mm-nh's."""
         return self.null_cost(m, self.null_weight)
 
-    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
-        return self.associate_keyframe([m], [candidates])[0]
+    def associate(
+        self, m: Measurement, candidates: Candidates, keyframe: Keyframe
+    ) -> AssociationRecord:
+        one = Keyframe(keyframe.prediction, [m], [candidates], keyframe.joint)
+        return self.associate_keyframe(one)[0]
 
-    def associate_keyframe(
-        self, measurements: list[Measurement], candidates: list[Candidates]
-    ) -> list[AssociationRecord]:
+    def associate_keyframe(self, keyframe: Keyframe) -> list[AssociationRecord]:
         """A detection without candidates is a new landmark; the others' modes are chosen
         together, at the predicted pose."""
-        for m in measurements:
-            self.space[m.kind].observe(m.vector, m.covariance)
         records: list[AssociationRecord] = []
         hybrid: list[HybridRecord] = []
-        for m, c in zip(measurements, candidates, strict=True):
+        for m, c in zip(keyframe.measurements, keyframe.candidates, strict=True):
             if len(c) == 0:
-                record = self.new_landmark(m)
+                record = self.new_landmark(m, keyframe)
                 self._hold(record.landmark_id, m)
             else:
                 record = self._hybrid_record(m, c)
                 hybrid.append(record)
             records.append(record)
         if hybrid:
-            prediction = self.context.prediction
+            prediction = keyframe.prediction
             solution = self._solve(hybrid, prediction)
             for record, mode, p in zip(hybrid, solution.modes, solution.probabilities, strict=True):
                 self._enter(record, mode, prediction.pose)
@@ -125,7 +122,7 @@ class DiscreteContinuous(MixtureMethod):
             self.null_weight,
             self.new_weight,
             m.log_normaliser,
-            new_landmark_log_volume(m.kind, self.space[m.kind]),
+            new_landmark_log_volume(m.kind, self.context.space[m.kind]),
             self.null_nll(m),
         )
         ids = [int(j) for j in c.landmark_ids]

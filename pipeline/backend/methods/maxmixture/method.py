@@ -22,23 +22,22 @@ from gtsam.symbol_shorthand import L, X
 from pipeline.backend.association import with_null_hypothesis
 from pipeline.backend.candidates import Candidates, KeyframeCovariance
 from pipeline.backend.decisions import (
-    MeasurementSpace,
     clutter_log_density,
     first_component,
     loop_pairs_needed,
 )
 from pipeline.backend.hypotheses import NULL, AssociationRecord, component_mahalanobis
-from pipeline.backend.joint_association import (
+from pipeline.backend.landmarks import LandmarkKind
+from pipeline.backend.measurements import Measurement, make_measurement
+from pipeline.backend.methods.base import BackendContext, Keyframe, MixtureMethod
+from pipeline.backend.methods.maxmixture.joint_association import (
     NONE,
     DetectionOptions,
     KeyframeProblem,
     associate_keyframe,
 )
-from pipeline.backend.landmarks import LandmarkKind
-from pipeline.backend.measurements import Measurement
-from pipeline.backend.methods.base import BackendContext, MixtureMethod
+from pipeline.backend.methods.maxmixture.mixture_factor import MaxMixtureFactor, component
 from pipeline.backend.mixture import component_nll
-from pipeline.backend.mixture_factor import MaxMixtureFactor, component
 
 
 class MaxMixture(MixtureMethod):
@@ -51,26 +50,22 @@ class MaxMixture(MixtureMethod):
         self.name = "mm-nh" if null_hypothesis else "mm"
         self.in_factor = self.config.mixture.selection == "custom-factor"
         choice = self.config.mixture.first_choice
-        self.jointly = choice == "joint" and null_hypothesis and not self.in_factor
+        self.wants_joint = choice == "joint" and null_hypothesis and not self.in_factor
         self.at_prediction = choice in ("joint", "prediction")
+        self.merges_landmarks = (
+            null_hypothesis and self.config.merges.enabled and not self.in_factor
+        )
         self._mixture_factors: list[tuple[AssociationRecord, MaxMixtureFactor]] = []
-        self.space = {kind: MeasurementSpace() for kind in LandmarkKind}
-
-    @property
-    def wants_joint(self) -> bool:
-        return self.jointly
-
-    @property
-    def merges_landmarks(self) -> bool:
-        return self.null_weight > 0 and self.config.merges.enabled and not self.in_factor
 
     def null_nll(self, m: Measurement) -> float:
         """The null component's cost for this detection (inf without a null hypothesis)."""
         return math.inf if self.null_weight <= 0 else self.null_cost(m, self.null_weight)
 
-    def associate(self, m: Measurement, candidates: Candidates) -> AssociationRecord:
+    def associate(
+        self, m: Measurement, candidates: Candidates, keyframe: Keyframe
+    ) -> AssociationRecord:
         if len(candidates) == 0:
-            return self.new_landmark(m)
+            return self.new_landmark(m, keyframe)
         weights = candidates.weights
         if self.null_weight > 0:
             weights, _ = with_null_hypothesis(weights, self.null_weight)
@@ -84,7 +79,7 @@ class MaxMixture(MixtureMethod):
             if first == NULL and self.merges_landmarks:
                 # Nothing fits where the odometry puts the detection: a landmark of its own,
                 # until a merge shows which landmark it duplicates.
-                return self.new_landmark(m)
+                return self.new_landmark(m, keyframe)
         else:
             # The most probable association, pose and landmarks marginalised out (the weights).
             best = int(np.argmax(weights))
@@ -95,19 +90,14 @@ class MaxMixture(MixtureMethod):
             record.handles = [self.context.add_factor(m, ids[record.active])]
         return self.track(record) if record.is_mixture else record
 
-    def associate_keyframe(
-        self, measurements: list[Measurement], candidates: list[Candidates]
-    ) -> list[AssociationRecord]:
+    def associate_keyframe(self, keyframe: Keyframe) -> list[AssociationRecord]:
         """The keyframe's detections chosen together (`joint_association.py`): a pairing that
         is best and unambiguous becomes the record's first component; every other detection
         starts a landmark of its own."""
-        for m in measurements:
-            if m.kind is LandmarkKind.POINT:
-                self.space[m.kind].observe(m.vector, m.covariance)
-        joint = self.context.keyframe_covariance
-        if not self.jointly or joint is None or not any(len(c) for c in candidates):
+        measurements, candidates, joint = keyframe.measurements, keyframe.candidates, keyframe.joint
+        if not self.wants_joint or joint is None or not any(len(c) for c in candidates):
             # Without a joint (every detection sure, or none near anything), one at a time.
-            return super().associate_keyframe(measurements, candidates)
+            return super().associate_keyframe(keyframe)
         a = self.config.association
         options = [
             self._options(m, c, joint) for m, c in zip(measurements, candidates, strict=True)
@@ -149,7 +139,7 @@ class MaxMixture(MixtureMethod):
         records = []
         for m, c, k in zip(measurements, candidates, chosen, strict=True):
             if k == NONE:
-                records.append(self.new_landmark(m))
+                records.append(self.new_landmark(m, keyframe))
                 continue
             weights, _ = with_null_hypothesis(c.weights, self.null_weight)
             ids = [int(j) for j in c.landmark_ids]
@@ -157,10 +147,20 @@ class MaxMixture(MixtureMethod):
             record = AssociationRecord(m, ids, weights, null_weight=self.null_weight, active=k)
             record.handles = [self.context.add_factor(m, ids[k])]
             records.append(self.track(record))
-            if m.kind is LandmarkKind.POINT:  # a sure pairing: its innovation tells the noise
-                R = c.innovation_covariances[k]
-                self.context.innovations.add(c.residuals[k], R - m.covariance, m.covariance)
         return records
+
+    def restate(self, records: list[AssociationRecord], scale: np.ndarray) -> None:
+        """Each record's detection at the detections' noise `scale`, its one factor (the
+        active component's) swapped for one at that noise."""
+        use_pose = self.config.landmarks.use_relative_pose
+        for record in records:
+            m = record.measurement
+            record.measurement = make_measurement(
+                m.pose_index, m.detection_index, m.detection, use_pose, scale
+            )
+            if record.handles:
+                self.context.remove_factors(record)
+                record.handles = [self.context.add_factor(record.measurement, record.landmark_id)]
 
     def _null_log_density(self, m: Measurement) -> float:
         """A point detection's null: a new landmark or clutter, anywhere in the measurement
@@ -168,7 +168,7 @@ class MaxMixture(MixtureMethod):
         if m.kind is not LandmarkKind.POINT:
             return -self.null_nll(m)
         report = float(self.context.confusion[:, m.detection.class_id].mean())
-        volume = self.space[m.kind].log_volume()
+        volume = self.context.space[m.kind].log_volume()
         return clutter_log_density(self.null_weight, report, volume)
 
     def _seniority(self, landmark_id: int, pose_index: int) -> float:

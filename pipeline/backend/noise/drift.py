@@ -1,0 +1,126 @@
+"""The odometry's noise per direction, from drift windows: the odometry composed over a window
+of keyframes against the estimate's relative pose of the window's ends.
+
+Over a window of W steps, the odometry's composed step U (covariance Q, each step's noise
+carried to the window's end to first order) and the estimate's relative pose T between the
+window's ends (covariance C, from iSAM2's joint marginal) differ by delta = Log(U^-1 T). Take
+the window's odometry and the rest of the graph as two measurements of T, the odometry's with
+the covariance Q_u it was given (the stated one at the scales in use) and the rest's with R:
+the estimate fuses them, C^-1 = Q_u^-1 + R^-1, and delta = G (z_odometry - z_rest) with
+G = I - C Q_u^-1. If the odometry's true covariance is Q(s) (the stated one at scales s, per
+direction), delta ~ N(0, G Q(s) G^T + C - C Q_u^-1 C). In the frame that whitens Q_u, with
+C = U diag(lambda) U^T: G = U diag(1 - lambda) U^T, and the part that does not depend on s is
+U diag(lambda - lambda^2) U^T. A direction the landmarks decide nothing of (lambda = 1) says
+nothing of s; one across a loop closure (lambda near 0) says much. Q(s) is linear in the pair
+coefficients sqrt(s_i s_j) (`components.py`), so a window is one `ScaleObservation` of the
+odometry's six directions, valid whatever scales are in use later: the windows of every scale
+are read together.
+
+iSAM2's estimate is relinearised only where it moved: along directions the landmarks leave to
+the odometry, a window's discrepancy is about SETTLING_VARIANCE (whitened), not zero.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import gtsam
+import numpy as np
+
+from pipeline.backend.noise.components import ScaleObservation, nonzero_pairs
+
+SETTLING_VARIANCE = 1e-3
+
+
+def transports(adjoints: np.ndarray) -> np.ndarray:
+    """T_k = A_n ... A_{k+1} for the (n, 6, 6) steps' `adjoints` (Ad(step^-1)): how step k's
+    right perturbation moves the composed pose at the window's end."""
+    out = np.empty_like(adjoints)
+    T = np.eye(6)
+    for k in range(len(adjoints) - 1, -1, -1):
+        out[k] = T
+        T = T @ adjoints[k]
+    return out
+
+
+def composed_basis(T: np.ndarray, stated: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """(P, 6, 6): the composed covariance sum_k T_k S_k(s) T_k^T as sum_p c_p(s) basis[p], for
+    the steps' (n, 6, 6) transports T and stated covariances."""
+    i, j = pairs[:, 0], pairs[:, 1]
+    basis = np.einsum("np,nap,nbp->pab", stated[:, i, j], T[:, :, i], T[:, :, j])
+    off = i != j
+    basis[off] += np.swapaxes(basis[off], 1, 2)
+    return basis
+
+
+def relative_covariance(relative: gtsam.Pose3, joint: np.ndarray) -> np.ndarray:
+    """Covariance of T = x_a^-1 x_b from the (12, 12) joint of x_a and x_b: a perturbation
+    x_a Exp(e_a), x_b Exp(e_b) moves T by T Exp(e_b - Ad(T^-1) e_a)."""
+    J = np.hstack([-relative.inverse().AdjointMap(), np.eye(6)])
+    return J @ joint @ J.T
+
+
+def drift_observation(
+    composed: gtsam.Pose3,
+    T: np.ndarray,
+    stated: np.ndarray,
+    relative: gtsam.Pose3,
+    joint: np.ndarray,
+    used: np.ndarray,
+) -> ScaleObservation:
+    """One window as an observation of the odometry's scales: the steps' product `composed`,
+    their transports `T` and stated covariances, the estimate's `relative` pose of the ends
+    and the (12, 12) joint covariance of the ends, taken with the odometry at scales `used`."""
+    pairs = nonzero_pairs(stated)
+    basis = composed_basis(T, stated, pairs)
+    Q = np.einsum("p,pab->ab", np.sqrt(used[pairs[:, 0]] * used[pairs[:, 1]]), basis)
+    W = np.linalg.inv(np.linalg.cholesky(Q))  # whitens Q: W Q W^T = I
+    delta = W @ gtsam.Pose3.Logmap(composed.between(relative))
+    C = W @ relative_covariance(relative, joint) @ W.T
+    lam, U = np.linalg.eigh(0.5 * (C + C.T))
+    lam = np.clip(lam, 0.0, 1.0)  # the estimate knows at most what the odometry says
+    GW = ((U * (1.0 - lam)) @ U.T) @ W
+    rest = (U * (lam - lam**2)) @ U.T + SETTLING_VARIANCE * np.eye(6)
+    return ScaleObservation.made(
+        delta, 0.5 * (rest + rest.T), GW @ basis @ GW.T, pairs, np.asarray(used, dtype=float)
+    )
+
+
+class DriftWindows:
+    """The odometry's latest steps, and the windows due: of `length` keyframes every
+    `every` keyframes, and of `long_length` (if any) every as many. A slow odometry bias drifts
+    more over a long window than white noise of the same step sigma, and the loops that must
+    close are long: long windows read it where short ones read the white part."""
+
+    def __init__(self, length: int, long_length: int = 0):
+        self.length = length
+        self.long_length = long_length
+        size = max(length, long_length)
+        self._steps: deque[gtsam.Pose3] = deque(maxlen=size)
+        self._adjoints: deque[np.ndarray] = deque(maxlen=size)
+        self._stated: deque[np.ndarray] = deque(maxlen=size)
+
+    def add_step(self, step: gtsam.Pose3, stated: np.ndarray) -> None:
+        self._steps.append(step)
+        self._adjoints.append(step.inverse().AdjointMap())
+        self._stated.append(np.asarray(stated, dtype=float))
+
+    def due(self, pose_index: int, every: int) -> list[int]:
+        """The window lengths ending at keyframe `pose_index`, checked every `every`
+        keyframes: each length whose steps are known, every `every` keyframes or, when longer,
+        every its own length, so that no two windows of one length overlap."""
+        lengths = [self.length] + ([self.long_length] if self.long_length else [])
+        return [n for n in lengths if len(self._steps) >= n and pose_index % max(n, every) == 0]
+
+    def observe(
+        self, relative: gtsam.Pose3, joint: np.ndarray, used: np.ndarray, length: int
+    ) -> ScaleObservation:
+        """The window of the last `length` steps: the estimate's pose of its last keyframe
+        relative to its first and their (12, 12) joint covariance, the odometry at `used`."""
+        steps = list(self._steps)[-length:]
+        composed = gtsam.Pose3()
+        for step in steps:
+            composed = composed.compose(step)
+        T = transports(np.array(list(self._adjoints)[-length:]))
+        stated = np.array(list(self._stated)[-length:])
+        return drift_observation(composed, T, stated, relative, joint, used)

@@ -1,0 +1,210 @@
+"""When and how the noise scales a replay uses are learnt: the policy over the estimators."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal, Protocol
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import X
+
+from pipeline.backend.noise.components import ScaleLikelihood
+from pipeline.backend.noise.contrasts import contrast_observation
+from pipeline.backend.noise.drift import DriftWindows
+from pipeline.backend.noise.scales import MEASUREMENT_COMPONENTS, ODOMETRY_AXES, NoiseScales
+from pipeline.config import NoiseConfig
+
+logger = logging.getLogger(__name__)
+
+Source = Literal["drift windows", "detections"]
+
+
+class EstimateReader(Protocol):
+    """What the learner reads of the estimate: poses and their joint covariance."""
+
+    def pose(self, key: int) -> gtsam.Pose3: ...
+
+    def joint_covariance(self, keys: list[int]) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class HeldDetections:
+    """A keyframe's point detections held by landmarks, at the current estimate: the pose,
+    each detection's landmark, measurement and stated covariance, and how many detections
+    each landmark holds."""
+
+    rotation: np.ndarray  # (3, 3)
+    translation: np.ndarray  # (3,)
+    landmarks: np.ndarray  # (K, 3)
+    measured: np.ndarray  # (K, 3)
+    stated: np.ndarray  # (K, 3, 3)
+    sightings: np.ndarray  # (K,)
+
+
+@dataclass(frozen=True)
+class NoiseMove:
+    """One change of the noise scales of `names`: at which keyframe, on whose evidence (the
+    odometry's drift windows, or the disagreement of the detections), each direction's scale before
+    and after, and each direction's evidence for leaving its scale (nats; 0: not far enough
+    from it to ask)."""
+
+    pose_index: int
+    source: Source
+    names: tuple[str, ...]
+    before: tuple[float, ...]
+    after: tuple[float, ...]
+    evidence: tuple[float, ...]
+
+    def report(self) -> dict:
+        """For metrics.json."""
+        return {
+            "pose_index": self.pose_index,
+            "source": self.source,
+            "scales": {
+                n: {"from": b, "to": a, "evidence_nats": round(e, 3)}
+                for n, b, a, e in zip(
+                    self.names, self.before, self.after, self.evidence, strict=True
+                )
+            },
+        }
+
+
+@dataclass(frozen=True)
+class NoiseChange:
+    """What a keyframe's learning changed: the odometry's scales, the detections'."""
+
+    odometry: bool = False
+    measurement: bool = False
+
+    def __bool__(self) -> bool:
+        return self.odometry or self.measurement
+
+
+class NoiseLearner:
+    """The noise scales a replay uses and, where `enabled` (`[noise] estimate`, a method that
+    learns them), how they are learnt: every `update_every` keyframes, the odometry's from its
+    drift windows (`drift.py`) and the detections' from what each keyframe's detections
+    disagree about (`contrasts.py`), each direction moved only on clear evidence
+    (`components.ScaleLikelihood.reading`)."""
+
+    def __init__(self, config: NoiseConfig, enabled: bool, planar: bool = False):
+        """`planar`: the poses are held in a plane (`planar.py`): a pose's error lies in its
+        yaw and its horizontal position only."""
+        n = self.config = config
+        self.pose_free = np.array([not planar] * 2 + [True] * 3 + [not planar])
+        self.enabled = enabled and n.estimate
+        self.scales = NoiseScales(tuple(n.odometry_scale), tuple(n.measurement_scale))
+        self.bounds = (n.min_scale, n.max_scale)
+        self.moves: list[NoiseMove] = []  # in order
+        self.drift = DriftWindows(n.drift_window, n.long_drift_window)
+        self.windows = ScaleLikelihood(ODOMETRY_AXES, n.drift_windows)
+        self.contrasts = ScaleLikelihood(MEASUREMENT_COMPONENTS, n.contrasts)
+        self._observed_to = 0  # keyframes before this one were looked at for contrasts
+        self._fresh = {"drift windows": 0, "detections": 0}  # observations since a reading
+
+    @property
+    def watches_drift(self) -> bool:
+        """Whether the odometry's steps are wanted (`add_step`)."""
+        return self.enabled
+
+    def add_step(self, step: gtsam.Pose3, stated: np.ndarray) -> None:
+        """The odometry's next step and its stated covariance."""
+        self.drift.add_step(step, stated)
+
+    def learn(
+        self,
+        pose_index: int,
+        estimate: EstimateReader,
+        held: Callable[[range], list[HeldDetections]],
+    ) -> NoiseChange:
+        """Every `update_every` keyframes: the drift windows ending now taken from `estimate`,
+        the keyframes since the last time as `held` gives their detections, and each
+        estimator read where it has new observations; what moved."""
+        n = self.config
+        if not self.enabled or pose_index % n.update_every:
+            return NoiseChange()
+        used = np.array(self.scales.measurement)
+        for keyframe in held(range(self._observed_to, pose_index + 1)):
+            observation = contrast_observation(
+                keyframe.rotation,
+                keyframe.translation,
+                keyframe.landmarks,
+                keyframe.measured,
+                keyframe.stated,
+                keyframe.sightings,
+                used,
+                self.pose_free,
+            )
+            if observation is not None:
+                self.contrasts.add(observation)
+                self._fresh["detections"] += 1
+        self._observed_to = pose_index + 1
+        last = X(pose_index)
+        last_pose = estimate.pose(last)
+        for length in self.drift.due(pose_index, n.update_every):
+            first = X(pose_index - length)
+            relative = estimate.pose(first).between(last_pose)
+            joint = estimate.joint_covariance([first, last])
+            used = np.array(self.scales.odometry)
+            self.windows.add(self.drift.observe(relative, joint, used, length))
+            self._fresh["drift windows"] += 1
+        odometry = self._read_odometry(pose_index)
+        measurement = self._read_measurement(pose_index)
+        return NoiseChange(odometry, measurement)
+
+    def _ready(self, source: Source, likelihood: ScaleLikelihood, least: int) -> bool:
+        if not self._fresh[source] or len(likelihood) < least:
+            return False
+        self._fresh[source] = 0
+        return True
+
+    def _read_odometry(self, pose_index: int) -> bool:
+        n = self.config
+        if not self._ready("drift windows", self.windows, n.min_drift_windows):
+            return False
+        current = np.array(self.scales.odometry)
+        reading = self.windows.reading(current, self.bounds, n.evidence, n.deadband, n.drop)
+        if reading.scales is None:
+            return False
+        after = tuple(float(s) for s in reading.scales)
+        self._moved(pose_index, "drift windows", ODOMETRY_AXES, current, after, reading.evidence)
+        self.scales = NoiseScales(after, self.scales.measurement)
+        return True
+
+    def _read_measurement(self, pose_index: int) -> bool:
+        n = self.config
+        if not self._ready("detections", self.contrasts, n.min_contrasts):
+            return False
+        current = np.array(self.scales.measurement)
+        reading = self.contrasts.reading(current, self.bounds, n.evidence, n.deadband, n.drop)
+        if reading.scales is None:
+            return False
+        after = tuple(float(s) for s in reading.scales)
+        self._moved(
+            pose_index, "detections", MEASUREMENT_COMPONENTS, current, after, reading.evidence
+        )
+        self.scales = NoiseScales(self.scales.odometry, after)
+        return True
+
+    def _moved(
+        self,
+        pose_index: int,
+        source: Source,
+        names: tuple[str, ...],
+        before: np.ndarray,
+        after: tuple[float, ...],
+        evidence: np.ndarray,
+    ) -> None:
+        move = NoiseMove(
+            pose_index,
+            source,
+            names,
+            tuple(float(b) for b in before),
+            after,
+            tuple(float(e) for e in evidence),
+        )
+        self.moves.append(move)
+        logger.debug("pose %d: %s moved the noise scales %s", pose_index, source, move.report())

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import math
 import os
 import signal
 import socket
@@ -38,7 +39,7 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE
 from pipeline.replay import ReplayResult, replay
-from pipeline.viz import draw, marks, stream
+from pipeline.viz import draw, marks, plots, stream
 from pipeline.viz import entities as e
 from pipeline.viz.config import load_viz_config
 from pipeline.viz.rerun_sink import RerunSink
@@ -129,6 +130,19 @@ def square_run(tmp_path_factory) -> SquareRun:
 
 
 # ----------------------------------------------------------------------------- the replay
+@pytest.mark.e2e
+def test_the_noise_scales_in_use_are_plotted_every_keyframe(square_run):
+    """A line per direction, a point per keyframe, log10 of the scale; the last the run's."""
+    _, result, _, _, rrd, _ = square_run
+    rows = read_rows(rrd)
+    final = result.metrics["noise_scales"]
+    for kind, key in (("odometry", "odometry"), ("detections", "measurement")):
+        for name, scale in final[key].items():
+            points = data_rows(rows[plots.noise_path(kind, name)], "Scalars:scalars")
+            assert [r["pose"] for r in points] == list(range(result.num_poses))
+            assert points[-1]["Scalars:scalars"][0] == pytest.approx(math.log10(scale), abs=1e-12)
+
+
 @pytest.mark.e2e
 def test_every_pose_is_logged_once_on_both_timelines(square_run):
     log, result, _, _, rrd, _ = square_run
@@ -306,8 +320,8 @@ def test_the_recording_opens_with_its_layout(square_run):
     views = blueprint_views(rrd)
     kinds = [kind for kind, _ in views]
     assert ("3D", e.WORLD) in views
-    # error, wrong associations, landmarks, switches and merges, null rate, time
-    assert kinds.count("TimeSeries") == 6
+    # error, wrong associations, landmarks, switches and merges, null rate, noise scales, time
+    assert kinds.count("TimeSeries") == 7
     assert "TextLog" in kinds
     assert "2D" not in kinds  # the log has no images; the legend is in the map
     rows = read_rows(rrd)

@@ -45,6 +45,8 @@ PLOTS = {
     "Landmarks",
     "Total: switches magenta, merges ice blue",
     "Null-hypothesis rate",
+    "Noise scales in use (log10; 0: as stated): "
+    + ", ".join(f"{kind} {name} {colour}" for kind, name, _, colour in plots.NOISE_SERIES),
     "Time per keyframe (ms): back-end grey, recording purple",
 }
 ERROR = "Translation error (m): newest pose amber, final estimate blue"

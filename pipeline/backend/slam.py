@@ -54,6 +54,7 @@ class KeyframeReport:
     # Graphs Cholesky refused at this keyframe, and what the solver did (each one a bug)
     solver_fallbacks: list[SolverFallback]
     map: ReadOnlyMap
+    noise: NoiseScales  # the noise scales in use after the keyframe
 
 
 @dataclass
@@ -286,6 +287,7 @@ class Backend:
             merged,
             self.solver.fallbacks[fallbacks_before:],
             ReadOnlyMap(self.solver, self.landmarks, self.switches, self.merges),
+            self.noise.scales,
         )
 
     def _add_origin(self) -> gtsam.Pose3:

@@ -86,10 +86,11 @@ def comparison_legend(items: Sequence[legend.LegendItem], count: int) -> legend.
 def moved_path(path: str, method: str) -> str | None:
     """Where an entity of a run's recording goes in the comparison; None: left out (the run's
     recording name and start time, the comparison has its own; what recording the run cost,
-    which says nothing of the method; its legend, the comparison draws one for all). The
+    which says nothing of the method; its legend, the comparison draws one for all; its noise
+    scales, which only mm-nh learns: each run's own recording plots them). The
     run's description, `/__properties/run`, becomes the comparison's property named after
     the method."""
-    if path in (PROPERTIES, e.VIZ_MS) or path.startswith(e.LEGEND + "/"):
+    if path in (PROPERTIES, e.VIZ_MS) or path.startswith((e.LEGEND + "/", e.NOISE + "/")):
         return None
     if path.startswith(PROPERTIES + "/"):
         return f"{PROPERTIES}/{method}"

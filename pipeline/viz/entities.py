@@ -64,6 +64,7 @@ MERGE_COUNT = "/metrics/counts/merges"  # cumulative
 WRONG_COUNT = "/metrics/associations/wrong"  # detections so far whose association is wrong now
 NULL_RATE = "/metrics/null_rate"  # detections associated to the null hypothesis, so far
 STEP_MS = "/metrics/time/backend_ms"  # trailing median of the per-keyframe times
+NOISE = "/metrics/noise"  # log10 of each noise scale in use: NOISE/odometry/yaw, ...
 VIZ_MS = "/metrics/time/viz_ms"
 
 # The front-end's own series

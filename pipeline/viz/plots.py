@@ -45,6 +45,26 @@ class Plot:
         return [s.path for s in self.series]
 
 
+# The noise scales' lines (`pipeline/backend/noise`): the odometry's directions, then the
+# detections' components.
+NOISE_SERIES = (
+    ("odometry", "roll", (140, 86, 75), "brown"),
+    ("odometry", "pitch", (227, 119, 194), "pink"),
+    ("odometry", "yaw", (214, 39, 40), "red"),
+    ("odometry", "forward", (44, 160, 44), "green"),
+    ("odometry", "lateral", (188, 189, 34), "olive"),
+    ("odometry", "vertical", (127, 127, 127), "grey"),
+    ("detections", "bearing", (31, 119, 180), "blue"),
+    ("detections", "elevation", (23, 190, 207), "cyan"),
+    ("detections", "range", (255, 127, 14), "orange"),
+)
+
+
+def noise_path(kind: str, name: str) -> str:
+    """The entity of one noise scale's line: `kind` odometry or detections."""
+    return f"{e.NOISE}/{kind}/{name}"
+
+
 def replay_plots(ground_truth: bool, truth_labels: bool, smoothing_window: int) -> list[Plot]:
     """A replay's plots. `ground_truth`: the log has a true trajectory (the error plot);
     `truth_labels`: its detections name their true landmark (the wrong associations)."""
@@ -78,6 +98,13 @@ def replay_plots(ground_truth: bool, truth_labels: bool, smoothing_window: int) 
         Plot(
             "Null-hypothesis rate",
             (Series(e.NULL_RATE, "null-hypothesis rate", draw.NULL_WINNER_RGB, "violet"),),
+        ),
+        Plot(
+            "Noise scales in use (log10; 0: as stated)",
+            tuple(
+                Series(noise_path(kind, name), f"{kind} {name}", rgb, colour)
+                for kind, name, rgb, colour in NOISE_SERIES
+            ),
         ),
         Plot(
             "Time per keyframe (ms)",

@@ -18,6 +18,7 @@ associations are wrong: `correctness.py`; the plots: `plots.py`; the layout: `bl
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -257,6 +258,13 @@ class RerunSink(MapView, ImageView, RecordingBase):
         held[e.LANDMARK_COUNT].append((i, stamp, len(view.landmarks)))
         held[e.SWITCH_COUNT].append((i, stamp, view.switches))
         held[e.MERGE_COUNT].append((i, stamp, view.merges))
+        scales = report.noise.report()
+        for kind, table in (
+            ("odometry", scales["odometry"]),
+            ("detections", scales["measurement"]),
+        ):
+            for name, scale in table.items():
+                held[plots.noise_path(kind, name)].append((i, stamp, math.log10(scale)))
         if self._tally is not None:
             held[e.WRONG_COUNT].append((i, stamp, self._tally.counts()[WRONG]))
         rate = self._null_count / len(self._winners) if self._winners else 0.0

@@ -27,6 +27,7 @@ from pipeline.backend.noise.drift import (
     drift_observation,
     relative_covariance,
     transports,
+    window_discrepancy,
 )
 from pipeline.backend.noise.scales import ODOMETRY_AXES
 
@@ -145,7 +146,9 @@ def test_a_window_observation_by_hand():
     relative = step * gtsam.Pose3.Expmap(delta)
     T = transports(np.array([step.inverse().AdjointMap()]))
     stated = 2.0 * np.eye(6)[None]
-    o = drift_observation(step, T, stated, relative, joint, np.ones(6))
+    o = drift_observation(
+        gtsam.Pose3.Logmap(step.between(relative)), T, stated, relative, joint, np.ones(6)
+    )
     np.testing.assert_allclose(o.y, delta / np.sqrt(2.0), atol=1e-12)
     s = np.array([3.0, 1.0, 1.0, 1.0, 5.0, 1.0])
     V = o.rest + np.einsum("p,pab->ab", pair_coefficients(s, o.pairs), o.basis)
@@ -169,7 +172,7 @@ def test_a_window_observation_is_the_fused_estimate_s_discrepancy():
     joint = np.zeros((12, 12))
     joint[6:, 6:] = C
     o = drift_observation(
-        gtsam.Pose3(), np.eye(6)[None], Q0[None], gtsam.Pose3(), joint, used
+        np.zeros(6), np.eye(6)[None], Q0[None], gtsam.Pose3(), joint, used
     )  # the basis and rest only; the discrepancies are drawn here
     W = np.linalg.inv(np.linalg.cholesky(Qu))
     empirical = np.cov(W @ (z_o - fused).T)
@@ -177,6 +180,41 @@ def test_a_window_observation_is_the_fused_estimate_s_discrepancy():
     np.testing.assert_allclose(
         empirical, model - SETTLING_VARIANCE * np.eye(6), atol=0.05 * np.max(model)
     )
+
+
+def test_a_window_s_discrepancy_is_its_steps_carried_to_its_end():
+    """To first order the composed discrepancy Log(U^-1 T_est); linear in the steps' own
+    (so that a heading error does not bend it: the composed one grows beyond first order)."""
+    rng = np.random.default_rng(6)
+    steps = random_steps(30, rng)
+    T = transports(np.array([step.inverse().AdjointMap() for step in steps]))
+
+    def both(size):
+        errors = rng.normal(0, size, (len(steps), 6))
+        estimated = [u * gtsam.Pose3.Expmap(e) for u, e in zip(steps, errors, strict=True)]
+        U, E = gtsam.Pose3(), gtsam.Pose3()
+        for u, e in zip(steps, estimated, strict=True):
+            U, E = U * u, E * e
+        return window_discrepancy(T, steps, estimated), gtsam.Pose3.Logmap(U.between(E)), errors
+
+    summed, composed, errors = both(1e-5)
+    np.testing.assert_allclose(summed, composed, atol=1e-7)  # second order, lever arms ~30 m
+    np.testing.assert_allclose(summed, np.einsum("kab,kb->a", T, errors), atol=1e-12)
+    summed, composed, _ = both(0.02)  # a heading known to a degree a step
+    assert np.abs(summed - composed).max() > 1e-3
+
+
+def test_a_window_whose_estimate_follows_the_odometry_shows_no_discrepancy():
+    rng = np.random.default_rng(8)
+    windows = DriftWindows(4)
+    steps = random_steps(4, rng)
+    for step in steps:
+        windows.add_step(step, 1e-4 * np.eye(6))
+    poses = [gtsam.Pose3()]
+    for step in steps:
+        poses.append(poses[-1] * step)
+    o = windows.observe(poses, random_covariance(12, rng, 0.005), np.ones(6))
+    np.testing.assert_allclose(o.y, 0.0, atol=1e-9)
 
 
 # --- the likelihood, its fit and its evidence --------------------------------------------
@@ -195,7 +233,9 @@ def fused_windows(Q0, R, used, true, n, rng):
         fused = C @ (np.linalg.solve(Qu, z_o) + np.linalg.solve(R, z_r))
         relative = gtsam.Pose3.Expmap(-(z_o - fused))  # U^-1 T, with U the identity
         out.append(
-            drift_observation(gtsam.Pose3(), np.eye(6)[None], Q0[None], relative, joint, used)
+            drift_observation(
+                gtsam.Pose3.Logmap(relative), np.eye(6)[None], Q0[None], relative, joint, used
+            )
         )
     return out
 
@@ -346,10 +386,10 @@ def test_windows_of_noisy_steps_against_the_true_path_find_the_yaw_scale(true_ya
         for step in truth:
             noise = rng.multivariate_normal(np.zeros(6), scaled_covariance(stated, true))
             drift.add_step(step * gtsam.Pose3.Expmap(noise), stated)
-        relative = gtsam.Pose3()
+        poses = [gtsam.Pose3()]
         for step in truth:
-            relative = relative * step
-        likelihood.add(drift.observe(relative, np.zeros((12, 12)), np.ones(6), 20))
+            poses.append(poses[-1] * step)
+        likelihood.add(drift.observe(poses, np.zeros((12, 12)), np.ones(6)))
     reading = likelihood.reading(np.ones(6), (0.01, 1e4), 3.0, 2.0, drop=2)
     if true_yaw == 1.0:
         assert reading.scales is None

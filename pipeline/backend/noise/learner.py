@@ -142,14 +142,12 @@ class NoiseLearner:
                 self.contrasts.add(observation)
                 self._fresh["detections"] += 1
         self._observed_to = pose_index + 1
-        last = X(pose_index)
-        last_pose = estimate.pose(last)
         for length in self.drift.due(pose_index, n.update_every):
-            first = X(pose_index - length)
-            relative = estimate.pose(first).between(last_pose)
-            joint = estimate.joint_covariance([first, last])
+            first = pose_index - length
+            poses = [estimate.pose(X(k)) for k in range(first, pose_index + 1)]
+            joint = estimate.joint_covariance([X(first), X(pose_index)])
             used = np.array(self.scales.odometry)
-            self.windows.add(self.drift.observe(relative, joint, used, length))
+            self.windows.add(self.drift.observe(poses, joint, used))
             self._fresh["drift windows"] += 1
         odometry = self._read_odometry(pose_index)
         measurement = self._read_measurement(pose_index)

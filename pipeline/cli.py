@@ -275,12 +275,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 def _cmd_frontend(args: argparse.Namespace) -> int:
     from pipeline.frontend.run import run_frontend
+    from pipeline.viz import frontend_sink_from_options
 
-    sink = None
-    if args.rrd or args.spawn or args.connect:
-        from pipeline.viz import sink_from_options
-
-        sink = sink_from_options(args.rrd, args.spawn, args.connect, "mmslam frontend")
+    sink = frontend_sink_from_options(args.rrd, args.spawn, args.connect, "mmslam frontend")
     try:
         summary = run_frontend(
             args.sequence,
@@ -294,8 +291,7 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
             calibration=args.calibration,
         )
     finally:
-        if sink is not None:
-            sink.close()
+        sink.close()
     _say(args, summary.summary_line())
     return 0
 

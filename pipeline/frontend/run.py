@@ -48,6 +48,8 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
 from pipeline.progress import track
+from pipeline.viz.frontend import show_keyframes
+from pipeline.viz.sink import NullSink
 
 if TYPE_CHECKING:
     from pipeline.viz.frontend import FrontendSink
@@ -388,10 +390,12 @@ def run_frontend(
 
     `images` (or `[output] images` in the config) also writes the keyframes' images;
     `progress` shows a progress bar per stage when stderr is a terminal; `sink` (a Rerun sink,
-    `pipeline/viz`) is shown every keyframe once the stages are done. The caller closes it.
+    `pipeline/viz`; default: one that shows nothing) is shown every keyframe once the stages are
+    done. The caller closes it.
     """
     import cv2
 
+    sink = sink or NullSink()
     cv2.setNumThreads(1)  # one core a run: runs are parallelised by the caller
     config = load_frontend_config(config_path)
     options = SequenceOptions(
@@ -411,7 +415,7 @@ def run_frontend(
         keyframes = run_odometry(sequence, config, progress)
     log.info("visual odometry: %d keyframes of %d frames", len(keyframes.frames), len(sequence))
     tags: list[list[Detection]] = [[] for _ in keyframes.frames]
-    outlines: list[list[tuple[int, np.ndarray]]] | None = [] if sink is not None else None
+    outlines: list[list[tuple[int, np.ndarray]]] = []  # per keyframe (tag id, corners), to show
     if config.apriltags.enabled:
         with _timed(seconds, "apriltags"):
             truth_ids = None if truth is None else tag_truth_ids(truth)
@@ -440,20 +444,16 @@ def run_frontend(
             for name in getattr(object_stage, "class_names", ())
         }
         truth_message = landmarks_message(truth, config.classes.num_classes, object_classes, 0)
-    if sink is not None:
-        from pipeline.viz.frontend import show_keyframes
-
-        with _timed(seconds, "viz"):
-            found = [t + b for t, b in zip(tags, boxes, strict=True)]
-            stamps = stamps_ns(sequence)
-            show_keyframes(sink, sequence, keyframes, stamps, outlines or [], found, metadata)
+    found = [t + b for t, b in zip(tags, boxes, strict=True)]
+    with _timed(seconds, "viz"):
+        show_keyframes(sink, sequence, keyframes, stamps_ns(sequence), outlines, found, metadata)
     with _timed(seconds, "write"):
         write_log(
             out,
             metadata,
             sequence,
             keyframes,
-            [t + b for t, b in zip(tags, boxes, strict=True)],
+            found,
             body_poses,
             truth_message,
             config.output if images or config.output.images else None,

@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from data_tools.scenarios.geometry import path_length, quaternion_from_rotation
 from data_tools.stated_noise import StatedNoise, restate_detection, restated_covariance
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.log import (
     Detection,
     Detections,
@@ -230,7 +231,8 @@ def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> Detection
     stamps = [int(t) for t in run.times_ns]
     counts = DetectionCounts()
     frames = iter(run.detections)
-    with LogWriter(path, run.metadata, foxglove=foxglove) as writer:
+    mirror = foxglove_mirror if foxglove else None
+    with LogWriter(path, run.metadata, mirror) as writer:
         writer.write(GroundTruthLandmarks(stamp_ns=stamps[0], landmarks=tuple(run.landmarks)))
         if run.calibration is not None:
             writer.write(run.calibration)

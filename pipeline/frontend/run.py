@@ -23,6 +23,7 @@ from pipeline.datasets.kitti import camera_poses_to_body
 from pipeline.datasets.layouts import SequenceOptions, open_sequence
 from pipeline.datasets.stereo import StereoSequence
 from pipeline.errors import InputError
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.frontend.apriltags import AprilTagDetector, tag_detection
 from pipeline.frontend.classes import tag_class_names
 from pipeline.frontend.config import FrontendConfig, OutputConfig, load_frontend_config
@@ -333,7 +334,7 @@ def write_log(
     """The log: calibration and ground-truth landmarks first, then pose by pose its odometry,
     detections, ground-truth pose and (if `images` says how) images."""
     stamps = stamps_ns(sequence)
-    with LogWriter(out, metadata) as writer:
+    with LogWriter(out, metadata, foxglove_mirror) as writer:
         writer.write(sequence.intrinsics.calibration_message(stamps[0]))
         if truth is not None:
             writer.write(dataclasses.replace(truth, stamp_ns=stamps[0]))

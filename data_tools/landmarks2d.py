@@ -251,7 +251,7 @@ def convert_landmarks2d(
         source=f"mmslam convert {Path(source).name} (a 2-D landmark dataset, lifted)",
     )
     period_ns = round(config.keyframe_period_s * 1e9)
-    with LogWriter(out, metadata, foxglove=False) as writer:
+    with LogWriter(out, metadata) as writer:
         for k in range(len(index)):
             stamp = k * period_ns
             if k > 0:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.geometry import quaternion_from_rotation
 from pipeline.log import (
     DetectionLog,
@@ -106,7 +107,7 @@ def write_long_log(source: Path, out: Path, poses: int) -> int:
     log = read_log(source)
     count = 0
     metadata = dataclasses.replace(log.metadata, source=f"{log.metadata.source}; chained")
-    with LogWriter(out, metadata) as writer:
+    with LogWriter(out, metadata, foxglove_mirror) as writer:
         for message in chained(log, poses):
             writer.write(message)
             count += isinstance(message, Odometry)

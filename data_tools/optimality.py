@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from gtsam.symbol_shorthand import X
 
-from pipeline.cli import method_list
+from pipeline.arguments import method_list
 from pipeline.config import Config, load_config
 from pipeline.errors import InputError, SolverError
 from pipeline.log import read_log

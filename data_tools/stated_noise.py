@@ -21,6 +21,7 @@ import numpy as np
 
 from pipeline.backend.noise import ODOMETRY_AXES, scaled_covariance
 from pipeline.errors import InputError
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.log import LogWriter
 from pipeline.log.mcap_stream import McapFile
 from pipeline.log.messages import Detection, Detections, Odometry
@@ -139,7 +140,7 @@ def restate_log(source: Path, out: Path, stated: StatedNoise) -> tuple[int, int]
     with McapFile(source) as mcap:
         metadata = log_metadata(mcap)
         validator = LogValidator(mcap.path, metadata)
-        with LogWriter(out, metadata) as writer:
+        with LogWriter(out, metadata, foxglove_mirror) as writer:
             for channel, index, log_time, data in mcap.messages():
                 msg = validator.message(channel, index, log_time, data)
                 if msg is None:

@@ -6,14 +6,18 @@ Heavy modules are imported inside the commands so that `--help` answers at once.
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib
 import logging
 import os
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from pipeline.arguments import method_list
+from pipeline.backend.methods import METHODS
 from pipeline.errors import (
     InputError,
     SolverError,
@@ -23,8 +27,28 @@ from pipeline.errors import (
     terminated_on_sigterm,
 )
 
-METHODS = ("known", "ml", "gpda", "mm", "mm-nh", "dcsam")
-SCENARIOS = ("indoor-tags", "kitti05-cars", "city-grid", "planar-park")
+
+class RegistryNames(Sequence[str]):
+    """The names of a registry (`module.attribute`), imported when first read: argparse's
+    choices from a module slow to import, so that `--help` and the other commands need not."""
+
+    def __init__(self, module: str, attribute: str):
+        self.module, self.attribute = module, attribute
+
+    @functools.cached_property
+    def names(self) -> tuple[str, ...]:
+        return tuple(getattr(importlib.import_module(self.module), self.attribute))
+
+    def __getitem__(self, index):  # type: ignore[override]
+        return self.names[index]
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+
+# The built-in scenarios are data_tools.scenarios.SCENARIOS (importing it loads NumPy and GTSAM);
+# the association methods, pipeline.backend.methods.METHODS (cheap to import).
+SCENARIOS = RegistryNames("data_tools.scenarios", "SCENARIOS")
 # Our own loggers: -v shows their debug lines; third-party libraries stay at warnings.
 OWN_LOGGERS = ("pipeline", "data_tools", "mmslam")
 
@@ -275,12 +299,9 @@ def _cmd_convert(args: argparse.Namespace) -> int:
 
 def _cmd_frontend(args: argparse.Namespace) -> int:
     from pipeline.frontend.run import run_frontend
+    from pipeline.viz import frontend_sink_from_options
 
-    sink = None
-    if args.rrd or args.spawn or args.connect:
-        from pipeline.viz import sink_from_options
-
-        sink = sink_from_options(args.rrd, args.spawn, args.connect, "mmslam frontend")
+    sink = frontend_sink_from_options(args.rrd, args.spawn, args.connect, "mmslam frontend")
     try:
         summary = run_frontend(
             args.sequence,
@@ -294,8 +315,7 @@ def _cmd_frontend(args: argparse.Namespace) -> int:
             calibration=args.calibration,
         )
     finally:
-        if sink is not None:
-            sink.close()
+        sink.close()
     _say(args, summary.summary_line())
     return 0
 
@@ -353,19 +373,6 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     logging.getLogger("mmslam").info("wrote %s", args.out)
     _say(args, result.summary_line())
     return 0
-
-
-def method_list(text: str) -> list[str]:
-    """An argparse type: `known,ml,mm-nh`, each a method, none twice."""
-    methods = [m.strip() for m in text.split(",") if m.strip()]
-    unknown = [m for m in methods if m not in METHODS]
-    if not methods or unknown:
-        raise argparse.ArgumentTypeError(
-            f"expected methods from {', '.join(METHODS)}, comma-separated; got {text!r}"
-        )
-    if len(set(methods)) != len(methods):
-        raise argparse.ArgumentTypeError(f"a method is named twice in {text!r}")
-    return methods
 
 
 def _cmd_compare(args: argparse.Namespace) -> int:
@@ -460,7 +467,8 @@ def build_parser() -> argparse.ArgumentParser:
     simulate = _subcommand(
         commands, "simulate", "write a log from a built-in scenario", _cmd_simulate
     )
-    simulate.add_argument("scenario", choices=SCENARIOS)
+    # a metavar, so that argparse does not read the choices (import the scenarios) to build it
+    simulate.add_argument("scenario", choices=SCENARIOS, metavar="SCENARIO", help="%(choices)s")
     simulate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
     simulate.add_argument(
         "--seed", type=number_in(int, 0), default=0, help="draws all noise, >= 0 (default 0)"

@@ -132,7 +132,7 @@ def perturbed(log_or_values, relative: float = 1e-9, *, seed: int, out=None):
         *[[(image, topic) for image in images] for topic, images in sorted(log.images.items())],
     ]
     ordered = heapq.merge(*topics, key=lambda item: item[0].stamp_ns)
-    with LogWriter(out, log.metadata, foxglove=False) as writer:
+    with LogWriter(out, log.metadata) as writer:
         for message, topic in ordered:
             writer.write(message, topic)
     return Path(out)

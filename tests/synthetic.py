@@ -8,6 +8,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.geometry import bearing_elevation_range, quaternion_from_rotation
 from pipeline.log import (
     Detection,
@@ -96,7 +97,7 @@ def write_scene(
     for i, j in scene.visible():
         by_pose.setdefault(i, []).append(j)
     stamp = lambda i: start_ns + i * 100_000_000  # noqa: E731
-    with LogWriter(path, metadata) as w:
+    with LogWriter(path, metadata, foxglove_mirror) as w:
         if ground_truth:
             w.write(
                 GroundTruthLandmarks(

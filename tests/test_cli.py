@@ -515,3 +515,33 @@ def test_plot_labels_its_axes_in_metres(tmp_path, good_log, capsys):
     assert_one_line_error(status, err, "not an image format")
     status, _, err = run_cli(capsys, "plot", str(good_log), str(tmp_path), "--out", str(out))
     assert_one_line_error(status, err, "metrics.json")
+
+
+def test_the_choices_are_the_registries():
+    """One registry each: the command line offers the scenarios and methods that
+    data_tools.scenarios and pipeline.backend.methods name, no copy of them."""
+    from data_tools.scenarios import SCENARIOS
+    from pipeline.arguments import method_list
+    from pipeline.backend.methods import METHODS
+    from pipeline.cli import build_parser
+
+    commands = next(a for a in build_parser()._actions if a.dest == "command").choices
+
+    def choices(command: str, dest: str) -> tuple[str, ...]:
+        action = next(a for a in commands[command]._actions if a.dest == dest)
+        return tuple(action.choices)
+
+    assert choices("simulate", "scenario") == SCENARIOS
+    assert choices("replay", "method") == METHODS
+    assert method_list(",".join(METHODS)) == list(METHODS)  # compare's and the tools' --methods
+
+
+def test_help_imports_neither_the_scenarios_nor_the_methods():
+    """`mmslam --help` stays fast: building the parser reads no registry's heavy module."""
+    code = (
+        "import sys; from pipeline.cli import build_parser; build_parser(); "
+        "heavy = [m for m in ('data_tools.scenarios', 'gtsam', 'numpy') if m in sys.modules]; "
+        "print(heavy)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"

@@ -216,8 +216,8 @@ def test_foxglove_topics_leave_the_contract_topics_as_they_were(tmp_path):
 
     original = log_writer.LogWriter.__init__
 
-    def without_foxglove(self, path, metadata, foxglove=True):
-        original(self, path, metadata, foxglove=False)
+    def without_foxglove(self, path, metadata, mirror=None):
+        original(self, path, metadata)
 
     log_writer.LogWriter.__init__ = without_foxglove
     try:

@@ -509,3 +509,22 @@ def test_colour_images_reach_the_object_stage(tmp_path):
     run_objects(sequence, [0, 2], stage, 2, None, None, config, progress=False)
     assert stage.shapes == [((185, 613, 3), (185, 613, 3))] * 2
     assert sequence[0][0].shape == (185, 613)  # odometry and tags get grey
+
+
+def test_a_run_without_a_viewer_reads_no_image_again_to_show():
+    """The front-end always hands its keyframes to a sink; with none given, the null sink, which
+    wants no images, so none is read again."""
+    from pipeline.frontend.run import Keyframes
+    from pipeline.frontend.stereo_vo import KeyframeStep
+    from pipeline.log import LogMetadata
+    from pipeline.viz.frontend import show_keyframes
+    from pipeline.viz.sink import NullSink
+
+    class Unreadable:
+        def __getitem__(self, frame: int):
+            raise AssertionError(f"frame {frame} read again")
+
+    step = KeyframeStep(3, np.eye(4), np.eye(6), 50, False)
+    keyframes = Keyframes([0, 3], [step], 0)
+    metadata = LogMetadata(1, ((1.0,),), ("tag",))
+    show_keyframes(NullSink(), Unreadable(), keyframes, [0, 10, 20, 30], [], [[], []], metadata)

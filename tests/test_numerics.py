@@ -139,7 +139,7 @@ def tag_log(path, bearing: float):
         covariance=tuple(np.diag([1e-4, 1e-4, 1e-2]).ravel()), source="apriltag",
         bbox=(10.0, 20.0, 30.0, 40.0), relative_pose=tag, truth_landmark_id=7,
     )  # fmt: skip
-    with LogWriter(path, metadata, foxglove=False) as writer:
+    with LogWriter(path, metadata) as writer:
         writer.write(GroundTruthPose(0, 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)))
         writer.write(Detections(0, 0, (detection,)))
         writer.write(Odometry(10, 0, 1, (1.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), covariance))

@@ -32,9 +32,12 @@ from data_tools.scenarios.common import (
     SimulationOptions,
     blocks,
     floats,
+    frames_by_bearing,
     metadata_for,
+    noisy_odometry,
     pieces,
     source_text,
+    truth_landmarks,
     vehicle_class_names,
     within_reach,
 )
@@ -48,17 +51,15 @@ from data_tools.scenarios.config import (
     Sigma,
     WorldSeed,
 )
-from data_tools.scenarios.geometry import bearing_elevation_range, relative_poses
+from data_tools.scenarios.geometry import bearing_elevation_range
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
     confusion_matrix,
-    corrupt_odometry,
-    odometry_covariances,
     random_streams,
     sample_reported_classes,
 )
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
-from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.log import Detection
 from pipeline.settings import positive, within
 
 logger = logging.getLogger(__name__)
@@ -123,9 +124,7 @@ class CityGridConfig:
 
 
 def load_config(path: Path | None = None) -> CityGridConfig:
-    config = cfg.load(CityGridConfig, NAME, path)
-    _check(config, path or cfg.default_config_path(NAME))
-    return config
+    return cfg.load_checked(CityGridConfig, NAME, path, _check)
 
 
 def _check(c: CityGridConfig, path: Path) -> None:
@@ -342,9 +341,7 @@ def simulate(
     poses = origin @ world.poses
     vehicles = world.vehicles @ origin[:3, :3].T + origin[:3, 3]
 
-    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
-    odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
-
+    odometry, covariance = noisy_odometry(config.odometry, options, poses, streams["odometry"])
     confusion = confusion_matrix(num_classes, options.misclassification)
 
     def detections() -> Iterator[list[Detection]]:
@@ -370,38 +367,28 @@ def simulate(
 
             reported = sample_reported_classes(streams["classes"], kinds % num_classes, confusion)
 
-            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
-            # Within a keyframe, detections go left to right as in the image (no hint of the
-            # truth).
-            for k in np.lexsort((-measured[:, 0], pose_index)):
-                frames[pose_index[k] - piece.start].append(
-                    Detection(
-                        class_id=int(reported[k]),
-                        score=1.0,
-                        bearing=float(measured[k, 0]),
-                        elevation=float(measured[k, 1]),
-                        range=float(measured[k, 2]),
-                        covariance=floats(np.diag(sigmas[k] ** 2)),
-                        source="bbox",
-                        truth_landmark_id=int(truth[k]),
-                    )
+            found = [
+                Detection(
+                    class_id=int(reported[k]),
+                    score=1.0,
+                    bearing=float(measured[k, 0]),
+                    elevation=float(measured[k, 1]),
+                    range=float(measured[k, 2]),
+                    covariance=floats(np.diag(sigmas[k] ** 2)),
+                    source="bbox",
+                    truth_landmark_id=int(truth[k]),
                 )
-            yield from frames
+                for k in range(len(pose_index))
+            ]
+            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
 
-    landmarks = [
-        GroundTruthLandmark(
-            id=m,
-            class_id=int(world.vehicle_types[m]) % num_classes,
-            position=floats(vehicles[m]),  # type: ignore[arg-type]
-        )
-        for m in range(len(vehicles))
-    ]
+    landmarks = truth_landmarks(vehicles, world.vehicle_types % num_classes)
     names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,
         odometry=odometry,
-        odometry_covariance=true if options.true_covariance else calibrated,
+        odometry_covariance=covariance,
         detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(

@@ -19,8 +19,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from data_tools.scenarios.geometry import path_length, quaternion_from_rotation
+from data_tools.scenarios.geometry import path_length, quaternion_from_rotation, relative_poses
+from data_tools.scenarios.noise import OdometryNoiseConfig, corrupt_odometry, odometry_covariances
 from data_tools.stated_noise import StatedNoise, restate_detection, restated_covariance
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.log import (
     Detection,
     Detections,
@@ -177,6 +179,40 @@ def floats(values: np.ndarray) -> tuple[float, ...]:
     return tuple(float(v) for v in np.ravel(values))
 
 
+def noisy_odometry(
+    config: OdometryNoiseConfig,
+    options: SimulationOptions,
+    poses: np.ndarray,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The odometry between consecutive `poses` with the noise `config` (scaled as `options`
+    say) drawn from `rng`, and the covariance the log states for it: the calibrated model's, or
+    with `true_covariance` that of the noise drawn."""
+    calibrated, true = odometry_covariances(config, options.odom_noise_scale)
+    odometry = corrupt_odometry(rng, relative_poses(poses), true)
+    return odometry, true if options.true_covariance else calibrated
+
+
+def frames_by_bearing(
+    piece: slice, pose_index: np.ndarray, bearing: np.ndarray, detections: Sequence[Detection]
+) -> list[list[Detection]]:
+    """A piece's `detections` keyframe by keyframe (candidate k at `pose_index[k]`), each
+    keyframe's left to right by `bearing`, as in an image or as a scanner sweeps, so that
+    their order gives no hint of the truth."""
+    frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
+    for k in np.lexsort((-bearing, pose_index)):
+        frames[pose_index[k] - piece.start].append(detections[k])
+    return frames
+
+
+def truth_landmarks(positions: np.ndarray, classes: Iterable[int]) -> list[GroundTruthLandmark]:
+    """The true landmarks, landmark m at `positions[m]` of class `classes[m]`."""
+    return [
+        GroundTruthLandmark(id=m, class_id=int(c), position=floats(p))  # type: ignore[arg-type]
+        for m, (p, c) in enumerate(zip(positions, classes, strict=True))
+    ]
+
+
 def metadata_for(
     num_classes: int, confusion: np.ndarray, class_names: list[str], source: str
 ) -> LogMetadata:
@@ -230,7 +266,8 @@ def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> Detection
     stamps = [int(t) for t in run.times_ns]
     counts = DetectionCounts()
     frames = iter(run.detections)
-    with LogWriter(path, run.metadata, foxglove=foxglove) as writer:
+    mirror = foxglove_mirror if foxglove else None
+    with LogWriter(path, run.metadata, mirror) as writer:
         writer.write(GroundTruthLandmarks(stamp_ns=stamps[0], landmarks=tuple(run.landmarks)))
         if run.calibration is not None:
             writer.write(run.calibration)

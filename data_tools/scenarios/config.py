@@ -4,6 +4,7 @@ their ranges with the kinds of value below."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, TypeVar
 
@@ -57,3 +58,13 @@ def default_config_path(scenario: str) -> Path:
 def load(cls: type[T], scenario: str, override: Path | None = None) -> T:
     """The defaults of `scenario` as `cls`, with the keys of `override` (if given) put over them."""
     return settings.load(cls, default_config_path(scenario), override)
+
+
+def load_checked(
+    cls: type[T], scenario: str, override: Path | None, check: Callable[[T, Path], None]
+) -> T:
+    """As `load`, then `check(config, path)` for what the keys' own ranges cannot say; a
+    refusal names `override` if given, else the defaults' file."""
+    config = load(cls, scenario, override)
+    check(config, override or default_config_path(scenario))
+    return config

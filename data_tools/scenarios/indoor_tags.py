@@ -30,9 +30,12 @@ from data_tools.scenarios.common import (
     SimulationOptions,
     blocks,
     floats,
+    frames_by_bearing,
     metadata_for,
+    noisy_odometry,
     pieces,
     source_text,
+    truth_landmarks,
     within_reach,
 )
 from data_tools.scenarios.config import (
@@ -50,21 +53,18 @@ from data_tools.scenarios.geometry import (
     inverse,
     pose_from_rotation_translation,
     quaternion_from_rotation,
-    relative_poses,
     se3_exp,
 )
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
     confusion_matrix,
-    corrupt_odometry,
-    odometry_covariances,
     random_streams,
     sample_reported_classes,
 )
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.errors import InputError
 from pipeline.frontend.classes import tag_class_names
-from pipeline.log import Detection, GroundTruthLandmark, RelativePose
+from pipeline.log import Detection, RelativePose
 from pipeline.settings import within
 
 logger = logging.getLogger(__name__)
@@ -126,9 +126,7 @@ class IndoorTagsConfig:
 
 
 def load_config(path: Path | None = None) -> IndoorTagsConfig:
-    config = cfg.load(IndoorTagsConfig, NAME, path)
-    _check(config, path or cfg.default_config_path(NAME))
-    return config
+    return cfg.load_checked(IndoorTagsConfig, NAME, path, _check)
 
 
 def _check(c: IndoorTagsConfig, path: Path) -> None:
@@ -342,8 +340,7 @@ def simulate(
     poses = origin @ world.poses
     tag_poses = origin @ world.tag_poses
 
-    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
-    odometry = corrupt_odometry(streams["odometry"], relative_poses(poses), true)
+    odometry, covariance = noisy_odometry(config.odometry, options, poses, streams["odometry"])
     confusion = confusion_matrix(num_classes, options.misclassification)
 
     def detections() -> Iterator[list[Detection]]:
@@ -371,42 +368,32 @@ def simulate(
             true_class = tag_id % num_classes
             reported = sample_reported_classes(streams["classes"], true_class, confusion)
 
-            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
-            # Within a keyframe, detections go left to right as in the image (no hint of the
-            # truth).
-            for d in np.lexsort((-measured[:, 0], pose_index)):
-                frames[pose_index[d] - piece.start].append(
-                    Detection(
-                        class_id=int(reported[d]),
-                        score=1.0,
-                        bearing=float(measured[d, 0]),
-                        elevation=float(measured[d, 1]),
-                        range=float(measured[d, 2]),
-                        covariance=point_covariance,
-                        source="apriltag",
-                        relative_pose=RelativePose(
-                            translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
-                            rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
-                            covariance=pose_covariance,
-                        ),
-                        truth_landmark_id=int(tag_id[d]),
-                    )
+            found = [
+                Detection(
+                    class_id=int(reported[d]),
+                    score=1.0,
+                    bearing=float(measured[d, 0]),
+                    elevation=float(measured[d, 1]),
+                    range=float(measured[d, 2]),
+                    covariance=point_covariance,
+                    source="apriltag",
+                    relative_pose=RelativePose(
+                        translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
+                        rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
+                        covariance=pose_covariance,
+                    ),
+                    truth_landmark_id=int(tag_id[d]),
                 )
-            yield from frames
+                for d in range(len(pose_index))
+            ]
+            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
 
-    landmarks = [
-        GroundTruthLandmark(
-            id=k,
-            class_id=k % num_classes,
-            position=floats(tag_poses[k, :3, 3]),  # type: ignore[arg-type]
-        )
-        for k in range(len(tag_poses))
-    ]
+    landmarks = truth_landmarks(tag_poses[:, :3, 3], np.arange(len(tag_poses)) % num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,
         odometry=odometry,
-        odometry_covariance=true if options.true_covariance else calibrated,
+        odometry_covariance=covariance,
         detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(

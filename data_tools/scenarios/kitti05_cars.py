@@ -30,9 +30,12 @@ from data_tools.scenarios.common import (
     SimulationOptions,
     blocks,
     floats,
+    frames_by_bearing,
     metadata_for,
+    noisy_odometry,
     pieces,
     source_text,
+    truth_landmarks,
     vehicle_class_names,
 )
 from data_tools.scenarios.config import (
@@ -46,15 +49,12 @@ from data_tools.scenarios.config import (
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     orthonormalise,
-    relative_poses,
     yaw_rotation,
 )
 from data_tools.scenarios.noise import (
     OdometryNoiseConfig,
     confusion_matrix,
-    corrupt_odometry,
     logistic,
-    odometry_covariances,
     random_streams,
     sample_reported_classes,
 )
@@ -66,7 +66,7 @@ from pipeline.datasets.kitti import (
     read_times,
 )
 from pipeline.errors import InputError
-from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.log import Detection
 from pipeline.settings import PROBABILITY, positive, within
 
 logger = logging.getLogger(__name__)
@@ -153,9 +153,7 @@ class Kitti05CarsConfig:
 
 
 def load_config(path: Path | None = None) -> Kitti05CarsConfig:
-    config = cfg.load(Kitti05CarsConfig, NAME, path)
-    _check(config, path or cfg.default_config_path(NAME))
-    return config
+    return cfg.load_checked(Kitti05CarsConfig, NAME, path, _check)
 
 
 def _check(c: Kitti05CarsConfig, path: Path) -> None:
@@ -562,9 +560,9 @@ def simulate(
     streams = random_streams(options.seed)
     num_classes = options.num_classes
 
-    calibrated, true = odometry_covariances(config.odometry, options.odom_noise_scale)
-    odometry = corrupt_odometry(streams["odometry"], relative_poses(world.poses), true)
-
+    odometry, covariance = noisy_odometry(
+        config.odometry, options, world.poses, streams["odometry"]
+    )
     confusion = confusion_matrix(num_classes, options.misclassification)
 
     def detections() -> Iterator[list[Detection]]:
@@ -580,39 +578,29 @@ def simulate(
             kinds = batch.kind % num_classes
             reported = sample_reported_classes(streams["classes"], kinds, confusion)
 
-            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
-            # Within a frame, detections go left to right as in the image (no hint of the
-            # truth).
-            for k in np.lexsort((-batch.measured[:, 0], batch.pose_index)):
-                frames[batch.pose_index[k] - piece.start].append(
-                    Detection(
-                        class_id=int(reported[k]),
-                        score=float(batch.score[k]),
-                        bearing=float(batch.measured[k, 0]),
-                        elevation=float(batch.measured[k, 1]),
-                        range=float(batch.measured[k, 2]),
-                        covariance=floats(batch.covariance[k]),
-                        source="bbox",
-                        bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
-                        truth_landmark_id=int(batch.truth[k]),
-                    )
+            found = [
+                Detection(
+                    class_id=int(reported[k]),
+                    score=float(batch.score[k]),
+                    bearing=float(batch.measured[k, 0]),
+                    elevation=float(batch.measured[k, 1]),
+                    range=float(batch.measured[k, 2]),
+                    covariance=floats(batch.covariance[k]),
+                    source="bbox",
+                    bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
+                    truth_landmark_id=int(batch.truth[k]),
                 )
-            yield from frames
+                for k in range(len(batch.pose_index))
+            ]
+            yield from frames_by_bearing(piece, batch.pose_index, batch.measured[:, 0], found)
 
-    landmarks = [
-        GroundTruthLandmark(
-            id=m,
-            class_id=int(world.car_types[m]) % num_classes,
-            position=floats(world.car_poses[m, :3, 3]),  # type: ignore[arg-type]
-        )
-        for m in range(len(world.car_types))
-    ]
+    landmarks = truth_landmarks(world.car_poses[:, :3, 3], world.car_types % num_classes)
     names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=world.poses,
         odometry=odometry,
-        odometry_covariance=true if options.true_covariance else calibrated,
+        odometry_covariance=covariance,
         detections=detections(),
         landmarks=landmarks,
         metadata=metadata_for(

@@ -30,9 +30,11 @@ from data_tools.scenarios.common import (
     SimulationOptions,
     blocks,
     floats,
+    frames_by_bearing,
     metadata_for,
     pieces,
     source_text,
+    truth_landmarks,
     within_reach,
 )
 from data_tools.scenarios.config import (
@@ -54,7 +56,7 @@ from data_tools.scenarios.geometry import (
 from data_tools.scenarios.noise import random_streams
 from data_tools.scenarios.routes import RouteConfig, check_route, drive
 from pipeline.errors import InputError
-from pipeline.log import Detection, GroundTruthLandmark
+from pipeline.log import Detection
 from pipeline.settings import positive, within
 
 logger = logging.getLogger(__name__)
@@ -115,9 +117,7 @@ class PlanarParkConfig:
 
 
 def load_config(path: Path | None = None) -> PlanarParkConfig:
-    config = cfg.load(PlanarParkConfig, NAME, path)
-    _check(config, path or cfg.default_config_path(NAME))
-    return config
+    return cfg.load_checked(PlanarParkConfig, NAME, path, _check)
 
 
 def _check(c: PlanarParkConfig, path: Path) -> None:
@@ -321,27 +321,22 @@ def simulate(
             measured[:, 1] = 0.0  # a planar scanner
             measured[:, 2] = np.maximum(measured[:, 2] + s.sigma_range_m * noise[:, 1], 0.1)
 
-            frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
-            # Within a scan, returns go by bearing, as a scanner sweeps (no hint of the truth).
-            for k in np.lexsort((-measured[:, 0], pose_index)):
-                frames[pose_index[k] - piece.start].append(
-                    Detection(
-                        class_id=0,
-                        score=1.0,
-                        bearing=float(measured[k, 0]),
-                        elevation=float(measured[k, 1]),
-                        range=float(measured[k, 2]),
-                        covariance=stated,
-                        source="bbox",  # the contract knows tags and detector boxes: a trunk
-                        truth_landmark_id=int(truth[k]),
-                    )
+            found = [
+                Detection(
+                    class_id=0,
+                    score=1.0,
+                    bearing=float(measured[k, 0]),
+                    elevation=float(measured[k, 1]),
+                    range=float(measured[k, 2]),
+                    covariance=stated,
+                    source="bbox",  # the contract knows tags and detector boxes: a trunk
+                    truth_landmark_id=int(truth[k]),
                 )
-            yield from frames
+                for k in range(len(pose_index))
+            ]
+            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
 
-    landmarks = [
-        GroundTruthLandmark(id=m, class_id=0, position=floats(trees[m]))  # type: ignore[arg-type]
-        for m in range(len(trees))
-    ]
+    landmarks = truth_landmarks(trees, [0] * len(trees))
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,

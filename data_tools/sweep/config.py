@@ -42,6 +42,7 @@ import msgspec.inspect as mi
 from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS
 from data_tools.stated_noise import MAX_FACTOR, STATED_DIRECTIONS
 from pipeline import settings
+from pipeline.backend.methods import METHODS
 from pipeline.errors import InputError
 
 # An axis stating one direction of the log's noise wrong (or all of the odometry's, or of the
@@ -111,12 +112,6 @@ def stated_direction(factor: str) -> str:
     return factor.removeprefix("stated_")
 
 
-def _methods_known() -> tuple[str, ...]:
-    from pipeline.backend.methods import METHODS
-
-    return METHODS
-
-
 def _fail(path: Path, message: str) -> InputError:
     return InputError(f"config {path}: {message}")
 
@@ -152,7 +147,7 @@ def _seeds(value: Any, path: Path) -> tuple[int, ...]:
 
 
 def _methods(value: Any, path: Path) -> tuple[str, ...]:
-    known = _methods_known()
+    known = METHODS
     if not isinstance(value, list) or not value:
         raise _fail(path, f"'methods' must be a non-empty list of {', '.join(known)}")
     for i, method in enumerate(value):

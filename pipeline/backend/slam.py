@@ -25,7 +25,8 @@ from pipeline.backend.hypotheses import AssociationRecord
 from pipeline.backend.landmarks import LandmarkKind, LandmarkMap
 from pipeline.backend.measurements import make_measurement
 from pipeline.backend.merges import MergeFinder
-from pipeline.backend.methods import BackendContext, Keyframe, make_method
+from pipeline.backend.methods import make_method
+from pipeline.backend.methods.base import BackendContext, Keyframe
 from pipeline.backend.noise import HeldDetections, NoiseLearner, NoiseMove, NoiseScales
 from pipeline.backend.planar import planar_prior_factors
 from pipeline.backend.solver import Isam2Solver, SolverFallback, fallback_counts

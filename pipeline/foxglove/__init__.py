@@ -6,7 +6,7 @@ the schema written into each MCAP channel as Foxglove reads it.
 - `messages`: pure conversions, our messages and results to Foxglove messages;
 - `channels`: writing them into an MCAP file;
 - `log_topics`: what a detection log holds, mirrored as the log is written (front-end and
-  `simulate`, through `LogWriter`);
+  `simulate`, given to `LogWriter` as its mirror);
 - `replay_file`: the estimate of a replay (`mmslam replay --mcap FILE`).
 
 Frames: `world` (pose 0's body frame), `body` (the log's odometry, dead-reckoned), and

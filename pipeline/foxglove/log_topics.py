@@ -1,5 +1,6 @@
 """A detection log's content as Foxglove messages, written beside the contract's topics as the
-log is written (`LogWriter` calls `LogMirror.write` for every message).
+log is written: `LogWriter(path, metadata, mirror=foxglove_mirror)` calls `LogMirror.write`
+for every message.
 
 - `/foxglove/tf` (FrameTransform): `world` to `body` per pose (odometry, dead-reckoned);
   `body` to `camera_left` once, from the calibration;
@@ -19,6 +20,7 @@ from typing import Any
 
 import foxglove.messages as fg
 import numpy as np
+from mcap.writer import Writer
 
 from pipeline.foxglove import messages as fm
 from pipeline.foxglove.channels import FoxgloveChannels
@@ -130,3 +132,8 @@ class LogMirror:
         self.out.write(ODOMETRY_PATH, stamp, fm.poses_in_frame(stamp, self.odometry_path))
         if self.truth_path:
             self.out.write(TRUTH_PATH, stamp, fm.poses_in_frame(stamp, self.truth_path))
+
+
+def foxglove_mirror(writer: Writer, metadata: LogMetadata) -> LogMirror:
+    """The mirror a `LogWriter` is given to write Foxglove's messages into its file."""
+    return LogMirror(FoxgloveChannels(writer), metadata)

@@ -42,6 +42,7 @@ from pipeline.frontend.geometry import (
     stereo_pixel_covariance,
     stereo_point_measurement,
 )
+from pipeline.frontend.stereo_vo import track_points
 from pipeline.log import Detection, RelativePose
 
 log = logging.getLogger(__name__)
@@ -55,6 +56,7 @@ LIBAPRILTAG_PIXEL_OFFSET = 0.5
 # sees the tag's own border more than what lies behind the tag.
 CORNER_WINDOW = 11
 CORNER_LEVELS = 3
+CORNER_ITERATIONS = 30
 CORNER_BACKWARD_ERROR = 0.5
 
 # The second IPPE pose is taken as plausible when its cost exceeds the best one's by less than
@@ -358,34 +360,18 @@ class AprilTagDetector:
         monocular pose predicts."""
         points = self.object_points @ camera_from_tag[:3, :3].T + camera_from_tag[:3, 3]
         guess = project(right_camera_points(points, self.intrinsics), self.intrinsics)
-        start = corners.astype(np.float32).reshape(-1, 1, 2)
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
-        size = (CORNER_WINDOW, CORNER_WINDOW)
-        forward, ok, _ = cv2.calcOpticalFlowPyrLK(
+        right_corners, tracked = track_points(
             left,
             right,
-            start,
-            guess.astype(np.float32).reshape(-1, 1, 2),
-            winSize=size,
-            maxLevel=CORNER_LEVELS,
-            criteria=criteria,
-            flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
+            corners,
+            CORNER_WINDOW,
+            CORNER_LEVELS,
+            CORNER_ITERATIONS,
+            CORNER_BACKWARD_ERROR,
+            guess,
         )
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            right,
-            left,
-            forward,
-            start.copy(),
-            winSize=size,
-            maxLevel=CORNER_LEVELS,
-            criteria=criteria,
-            flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-        )
-        right_corners = forward.reshape(-1, 2).astype(float)
         good = (
-            ok.all()
-            and ok_back.all()
-            and np.linalg.norm((back - start).reshape(-1, 2), axis=1).max() < CORNER_BACKWARD_ERROR
+            tracked.all()
             and np.abs(right_corners[:, 1] - corners[:, 1]).max() <= self.config.max_row_error
             and np.all(corners[:, 0] - right_corners[:, 0] > 0)
         )

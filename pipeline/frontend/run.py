@@ -23,6 +23,7 @@ from pipeline.datasets.kitti import camera_poses_to_body
 from pipeline.datasets.layouts import SequenceOptions, open_sequence
 from pipeline.datasets.stereo import StereoSequence
 from pipeline.errors import InputError
+from pipeline.foxglove.log_topics import foxglove_mirror
 from pipeline.frontend.apriltags import AprilTagDetector, tag_detection
 from pipeline.frontend.classes import tag_class_names
 from pipeline.frontend.config import FrontendConfig, OutputConfig, load_frontend_config
@@ -48,6 +49,8 @@ from pipeline.log import (
 )
 from pipeline.log.schemas import LEFT_IMAGE, RIGHT_IMAGE
 from pipeline.progress import track
+from pipeline.viz.frontend import show_keyframes
+from pipeline.viz.sink import NullSink
 
 if TYPE_CHECKING:
     from pipeline.viz.frontend import FrontendSink
@@ -331,7 +334,7 @@ def write_log(
     """The log: calibration and ground-truth landmarks first, then pose by pose its odometry,
     detections, ground-truth pose and (if `images` says how) images."""
     stamps = stamps_ns(sequence)
-    with LogWriter(out, metadata) as writer:
+    with LogWriter(out, metadata, foxglove_mirror) as writer:
         writer.write(sequence.intrinsics.calibration_message(stamps[0]))
         if truth is not None:
             writer.write(dataclasses.replace(truth, stamp_ns=stamps[0]))
@@ -388,10 +391,12 @@ def run_frontend(
 
     `images` (or `[output] images` in the config) also writes the keyframes' images;
     `progress` shows a progress bar per stage when stderr is a terminal; `sink` (a Rerun sink,
-    `pipeline/viz`) is shown every keyframe once the stages are done. The caller closes it.
+    `pipeline/viz`; default: one that shows nothing) is shown every keyframe once the stages are
+    done. The caller closes it.
     """
     import cv2
 
+    sink = sink or NullSink()
     cv2.setNumThreads(1)  # one core a run: runs are parallelised by the caller
     config = load_frontend_config(config_path)
     options = SequenceOptions(
@@ -411,7 +416,7 @@ def run_frontend(
         keyframes = run_odometry(sequence, config, progress)
     log.info("visual odometry: %d keyframes of %d frames", len(keyframes.frames), len(sequence))
     tags: list[list[Detection]] = [[] for _ in keyframes.frames]
-    outlines: list[list[tuple[int, np.ndarray]]] | None = [] if sink is not None else None
+    outlines: list[list[tuple[int, np.ndarray]]] = []  # per keyframe (tag id, corners), to show
     if config.apriltags.enabled:
         with _timed(seconds, "apriltags"):
             truth_ids = None if truth is None else tag_truth_ids(truth)
@@ -440,20 +445,16 @@ def run_frontend(
             for name in getattr(object_stage, "class_names", ())
         }
         truth_message = landmarks_message(truth, config.classes.num_classes, object_classes, 0)
-    if sink is not None:
-        from pipeline.viz.frontend import show_keyframes
-
-        with _timed(seconds, "viz"):
-            found = [t + b for t, b in zip(tags, boxes, strict=True)]
-            stamps = stamps_ns(sequence)
-            show_keyframes(sink, sequence, keyframes, stamps, outlines or [], found, metadata)
+    found = [t + b for t, b in zip(tags, boxes, strict=True)]
+    with _timed(seconds, "viz"):
+        show_keyframes(sink, sequence, keyframes, stamps_ns(sequence), outlines, found, metadata)
     with _timed(seconds, "write"):
         write_log(
             out,
             metadata,
             sequence,
             keyframes,
-            [t + b for t, b in zip(tags, boxes, strict=True)],
+            found,
             body_poses,
             truth_message,
             config.output if images or config.output.images else None,

@@ -3,9 +3,11 @@
 Every message goes through the reader's own checks (`validate.py`) before it is written, so a
 log this writer completes is one the reader accepts; a message that fails them is an
 `InputError` and nothing is written. The file appears only once complete (`AtomicFile`), with
-MCAP's CRCs over its chunks, its data section and its summary. Unless asked not to, it also
-writes Foxglove's well-known messages under `/foxglove/` (`pipeline/foxglove/log_topics.py`),
-from the messages that passed the checks, so that the log shows in Foxglove; readers skip them.
+MCAP's CRCs over its chunks, its data section and its summary. A caller may hand it a mirror
+that writes more beside the contract's topics, from the messages that passed the checks:
+Foxglove's well-known messages under `/foxglove/` (`foxglove_mirror` of
+`pipeline/foxglove/log_topics.py`), so that the log shows in Foxglove; readers skip them. The
+mirror is handed in, not imported: this layer knows nothing of the ones above it.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ from __future__ import annotations
 import json
 import os
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Protocol
 
 from mcap.writer import CompressionType, Writer
 
@@ -42,13 +45,31 @@ def mcap_writer(file: BinaryIO) -> Writer:
     return Writer(file, compression=CompressionType.ZSTD, enable_crcs=True, enable_data_crcs=True)
 
 
+class Mirror(Protocol):
+    """Sees every message a log writer has checked and written, in order, and writes its own
+    beside them into the same MCAP file."""
+
+    def write(self, msg: Any) -> None: ...
+
+    def finish(self) -> None: ...
+
+
+# Makes a mirror for the MCAP file a writer opens, given the log's metadata.
+MirrorFactory = Callable[[Writer, LogMetadata], Mirror]
+
+
 class LogWriter:
     """Writes a log; use as a context manager. Messages go in the order they are written.
 
-    With `foxglove` (the default), Foxglove's well-known messages are written beside the
-    contract's topics."""
+    With `mirror` (`pipeline.foxglove.log_topics.foxglove_mirror`, say), what it makes of the
+    messages is written beside the contract's topics."""
 
-    def __init__(self, path: str | os.PathLike, metadata: LogMetadata, foxglove: bool = True):
+    def __init__(
+        self,
+        path: str | os.PathLike,
+        metadata: LogMetadata,
+        mirror: MirrorFactory | None = None,
+    ):
         self.path = Path(path)
         self.metadata = metadata
         record = metadata_record(metadata)
@@ -63,12 +84,7 @@ class LogWriter:
         self._channels: dict[str, ChannelInfo] = {}
         self._counts: Counter[str] = Counter()
         self._writer.add_metadata(METADATA_NAME, record)
-        self._foxglove = None
-        if foxglove:
-            from pipeline.foxglove.channels import FoxgloveChannels
-            from pipeline.foxglove.log_topics import LogMirror
-
-            self._foxglove = LogMirror(FoxgloveChannels(self._writer), metadata)
+        self._mirror = None if mirror is None else mirror(self._writer, metadata)
 
     def _refusal(self, detail: str) -> InputError:
         return InputError(f"not writing {self.path}: {detail}")
@@ -108,8 +124,8 @@ class LogWriter:
             data=data,
             sequence=0,
         )
-        if self._foxglove is not None:
-            self._foxglove.write(msg)
+        if self._mirror is not None:
+            self._mirror.write(msg)
 
     def close(self) -> None:
         try:
@@ -118,8 +134,8 @@ class LogWriter:
             self.abort()
             raise self._refusal(exc.detail) from None
         try:
-            if self._foxglove is not None:
-                self._foxglove.finish()
+            if self._mirror is not None:
+                self._mirror.finish()
             self._writer.finish()
         except BaseException:
             self.abort()

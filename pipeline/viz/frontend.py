@@ -26,7 +26,7 @@ class TagOutline:
 class FrontendKeyframe:
     pose_index: int
     stamp_ns: int
-    left: np.ndarray  # the left image as read (grey or BGR)
+    left: np.ndarray | None  # the left image as read (grey or BGR); None unless wanted
     body_pose: np.ndarray  # 4x4: visual odometry's pose of the body, pose 0 the origin
     step: KeyframeStep | None  # the motion that reached this keyframe (none for pose 0)
     tags: list[TagOutline] = field(default_factory=list)
@@ -34,6 +34,10 @@ class FrontendKeyframe:
 
 
 class FrontendSink(Protocol):
+    """Sees a front-end run's keyframes once its stages are done (see `show_keyframes`)."""
+
+    wants_images: bool  # the keyframes' images are read again only for a sink that shows them
+
     def frontend_start(self, metadata: LogMetadata, extent: np.ndarray | None = None) -> None: ...
 
     def frontend_keyframe(self, keyframe: FrontendKeyframe) -> None: ...
@@ -52,14 +56,14 @@ def show_keyframes(
 ) -> None:
     """Hand every keyframe to `sink`, in order. `keyframes` is the front-end's `Keyframes`
     (frames, steps); `outlines` per keyframe (tag id, corners), or empty without tags. Images
-    are read again from `sequence`: only the keyframes', and only when something is shown."""
+    are read again from `sequence`: only the keyframes', and only for a sink that wants them."""
     poses = [np.eye(4)]
     for step in keyframes.steps[: len(keyframes.frames) - 1]:
         poses.append(poses[-1] @ step.motion)
     sink.frontend_start(metadata, np.array([pose[:3, 3] for pose in poses]))
     for index, frame in enumerate(keyframes.frames):
         step = keyframes.steps[index - 1] if index > 0 else None
-        left, _ = sequence[frame]
+        left = sequence[frame][0] if sink.wants_images else None
         tags = outlines[index] if index < len(outlines) else []
         found = list(detections[index])
         sink.frontend_keyframe(

@@ -5,8 +5,11 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any, Protocol
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from pipeline.backend.slam import BackendResult, KeyframeReport
-    from pipeline.log.messages import DetectionLog
+    from pipeline.log.messages import DetectionLog, LogMetadata
+    from pipeline.viz.frontend import FrontendKeyframe
 
 
 class Sink(Protocol):
@@ -25,7 +28,8 @@ class Sink(Protocol):
 
 
 class NullSink:
-    """Shows nothing, costs nothing."""
+    """Shows nothing, costs nothing: a replay's sink (`Sink`) and a front-end run's
+    (`pipeline.viz.frontend.FrontendSink`) when nothing is viewed."""
 
     wants_images = False
 
@@ -36,6 +40,15 @@ class NullSink:
         pass
 
     def finish(self, result: BackendResult, metrics: dict[str, Any] | None) -> None:
+        pass
+
+    def frontend_start(self, metadata: LogMetadata, extent: np.ndarray | None = None) -> None:
+        pass
+
+    def frontend_keyframe(self, keyframe: FrontendKeyframe) -> None:
+        pass
+
+    def frontend_finish(self) -> None:
         pass
 
     def close(self) -> None:

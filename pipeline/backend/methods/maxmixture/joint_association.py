@@ -120,12 +120,7 @@ class KeyframeProblem:
             J = np.zeros((det.dim, self.covariance.shape[0]))
             J[:, :6] = det.pose_jacobians[k]
             J[:, start : start + width] = det.landmark_jacobians[k]
-            # J's two blocks times their rows of Sigma: O(d n), where J @ Sigma is O(d n^2)
-            J_sigma = (
-                det.pose_jacobians[k] @ self.covariance[:6]
-                + det.landmark_jacobians[k] @ self.covariance[start : start + width]
-            )
-            rows = self._rows[i, k] = (J, J_sigma)
+            rows = self._rows[i, k] = (J, J @ self.covariance)
         return rows
 
 
@@ -291,17 +286,13 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     are likely one landmark mapped twice, which a merge will join; a choice between them is
     no ambiguity."""
     det = problem.detections[i]
-    # J has two blocks, +H_k and -H_other: J Sigma J^T from their blocks of Sigma alone
-    rows = [
-        problem.block_offsets[det.slots[o]] + np.arange(problem.block_dims[det.slots[o]])
-        for o in (k, other)
-    ]
-    H = [det.landmark_jacobians[k], -det.landmark_jacobians[other]]
-    covariance = det.covariance + sum(
-        H[a] @ problem.covariance[np.ix_(rows[a], rows[b])] @ H[b].T
-        for a in range(2)
-        for b in range(2)
-    )
+    n = problem.covariance.shape[0]  # a group's cut joint, bounded (`_group_problem`)
+    J = np.zeros((det.dim, n))
+    for option, sign in ((k, 1.0), (other, -1.0)):
+        slot = det.slots[option]
+        start, width = problem.block_offsets[slot], problem.block_dims[slot]
+        J[:, start : start + width] += sign * det.landmark_jacobians[option]
+    covariance = J @ problem.covariance @ J.T + det.covariance
     difference = det.residuals[k] - det.residuals[other]
     d2 = float(difference @ np.linalg.solve(covariance, difference))
     return d2 <= chi2_gate(det.dim, problem.gate_confidence)

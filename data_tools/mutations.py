@@ -432,11 +432,6 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
                 '"nsec": msg.stamp_ns % 1_000_000_000',
                 '"nsec": msg.stamp_ns // 1_000_000_000',
             ),
-            (
-                "a bad value shown whole in the message",
-                "return text if len(text) <= SHOWN_CHARS else",
-                "return text if True else",
-            ),
         ],
     ),
     (
@@ -562,8 +557,8 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
             ),
             (
                 "the quaternion written w first",
-                "values = [stamp, *T[:3, 3], *q]",
-                "values = [stamp, *T[:3, 3], q[3], *q[:3]]",
+                "values = [*T[:3, 3], *q]",
+                "values = [*T[:3, 3], q[3], *q[:3]]",
             ),
             ("a landmark's y and z swapped", "{x:.6f},{y:.6f},{z:.6f}", "{x:.6f},{z:.6f},{y:.6f}"),
             ("weights to two digits", 'f"{p},{d},{lm},{w:.6f}"', 'f"{p},{d},{lm},{w:.2f}"'),
@@ -656,6 +651,82 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
                 "round(len(holding), 6)",
             ),
             ("true landmark 0 taken for a false positive", "if truth < 0:", "if truth <= 0:"),
+        ],
+    ),
+    (
+        "backend/noise/contrasts",
+        "pipeline/backend/noise/contrasts.py",
+        ("tests/test_noise.py", *FAST),
+        [
+            (
+                "each landmark's share of its own detections ignored",
+                "share = 1.0 - 1.0 / np.maximum(np.asarray(sightings, dtype=float), 1.0)",
+                "share = np.ones(len(sightings))",
+            ),
+            (
+                "a planar log's pose taken as free in all six directions",
+                "free = np.ones(POSE_DIRECTIONS, bool) if free is None else np.asarray(free, bool)",
+                "free = np.ones(POSE_DIRECTIONS, bool)",
+            ),
+            (
+                "the pose's error left in",
+                "N = U[:, rank:]  # what the pose's error cannot move",
+                "N = U",
+            ),
+            (
+                "whitened at the stated noise, not at the scales in use",
+                "root = np.sqrt(np.asarray(used, dtype=float))",
+                "root = np.ones(3)",
+            ),
+        ],
+    ),
+    (
+        "backend/noise/drift",
+        "pipeline/backend/noise/drift.py",
+        ("tests/test_noise.py", *FAST),
+        [
+            (
+                "a window's discrepancy its first step's alone",
+                'return np.einsum("kab,kb->a", T, residuals)',
+                "return T[0] @ residuals[0]",
+            ),
+            (
+                "the steps carried to the window's end in the wrong order",
+                "        T = T @ adjoints[k]",
+                "        T = adjoints[k] @ T",
+            ),
+            (
+                "windows of one length overlapping",
+                "pose_index % max(n, every) == 0",
+                "pose_index % every == 0",
+            ),
+            (
+                "the estimate's share of a direction not kept within [0, 1]",
+                "lam = np.clip(lam, 0.0, 1.0)",
+                "lam = lam",
+            ),
+            (
+                "the estimate's relative covariance with the first pose's part added",
+                "J = np.hstack([-relative.inverse().AdjointMap(), np.eye(6)])",
+                "J = np.hstack([relative.inverse().AdjointMap(), np.eye(6)])",
+            ),
+        ],
+    ),
+    (
+        "backend/noise/components",
+        "pipeline/backend/noise/components.py",
+        ("tests/test_noise.py", *FAST),
+        [
+            (
+                "no observation dropped from the evidence",
+                "evidence[i] = float(np.sum(gains[drop:]) - prior)",
+                "evidence[i] = float(np.sum(gains) - prior)",
+            ),
+            (
+                "a move down as easy as a move up",
+                "needed = np.where(best < now, DOWN_EVIDENCE * min_evidence, min_evidence)",
+                "needed = np.full_like(best, min_evidence)",
+            ),
         ],
     ),
     (
@@ -773,7 +844,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
     ),
     (
         "dcsam/method",
-        "pipeline/backend/methods/dcsam.py",
+        "pipeline/backend/methods/dcsam/method.py",
         DCSAM_TESTS,
         [
             (
@@ -822,7 +893,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
     ),
     (
         "dcsam/model",
-        "pipeline/backend/dcsam_model.py",
+        "pipeline/backend/methods/dcsam/model.py",
         DCSAM_TESTS,
         [
             (
@@ -870,7 +941,7 @@ _TABLE: list[tuple[str, str, tuple[str, ...], list[tuple[str, ...]]]] = [
     ),
     (
         "dcsam/discrete_step",
-        "pipeline/backend/discrete_step.py",
+        "pipeline/backend/methods/dcsam/discrete_step.py",
         DCSAM_TESTS,
         [
             (

@@ -157,6 +157,18 @@ def test_a_window_observation_by_hand():
     np.testing.assert_allclose(np.diag(V), expected)
 
 
+def test_a_window_the_estimate_knows_less_of_than_the_odometry_says_nothing():
+    """Numerically the estimate's relative covariance can exceed the odometry's (C > Q, where a
+    fused estimate has C <= Q): such a direction is the odometry's alone, and tells nothing."""
+    step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
+    joint = np.zeros((12, 12))
+    joint[6:, 6:] = 8.0 * np.eye(6)  # whitened by Q = 2 I: 4, above 1
+    T = transports(np.array([step.inverse().AdjointMap()]))
+    o = drift_observation(np.zeros(6), T, 2.0 * np.eye(6)[None], step, joint, np.ones(6))
+    np.testing.assert_allclose(o.basis, 0.0, atol=1e-12)
+    np.testing.assert_allclose(o.rest, SETTLING_VARIANCE * np.eye(6), atol=1e-12)
+
+
 def test_a_window_observation_is_the_fused_estimate_s_discrepancy():
     """An odometry (true covariance Q(s)) and the rest of the graph (R) fused as the back-end
     would with the odometry stated at `used`: the discrepancies' covariance is the model's."""
@@ -273,6 +285,21 @@ def test_one_direction_misstated_is_found_and_moved_alone(direction, true, decid
     assert moved.tolist() == [direction]
     assert reading.scales[direction] == pytest.approx(true, rel=0.35)
     assert reading.evidence[direction] >= 3.0
+
+
+def test_a_move_down_takes_twice_the_evidence_of_a_move_up():
+    """A noise learnt too small turns true pairings away: down needs DOWN_EVIDENCE times the
+    evidence up does."""
+    rng, Q0, R = window_case(31, decided=0.02)
+    true = np.ones(6)
+    true[YAW] = 0.1
+    likelihood = likelihood_of(fused_windows(Q0, R, np.ones(6), true, 40, rng))
+    evidence = likelihood.reading(np.ones(6), (0.01, 1e4), 0.0, 1.5, drop=2).evidence[YAW]
+    assert evidence > 1.0
+    held = likelihood.reading(np.ones(6), (0.01, 1e4), evidence / 1.5, 1.5, drop=2)
+    assert held.scales is None or held.scales[YAW] == 1.0
+    moved = likelihood.reading(np.ones(6), (0.01, 1e4), evidence / 2.5, 1.5, drop=2)
+    assert moved.scales[YAW] < 0.5
 
 
 def test_windows_of_an_odometry_stated_right_move_nothing():

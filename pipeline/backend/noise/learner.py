@@ -149,42 +149,31 @@ class NoiseLearner:
             used = np.array(self.scales.odometry)
             self.windows.add(self.drift.observe(poses, joint, used))
             self._fresh["drift windows"] += 1
-        odometry = self._read_odometry(pose_index)
-        measurement = self._read_measurement(pose_index)
+        odometry = self._read(pose_index, "drift windows")
+        measurement = self._read(pose_index, "detections")
         return NoiseChange(odometry, measurement)
 
-    def _ready(self, source: Source, likelihood: ScaleLikelihood, least: int) -> bool:
+    def _read(self, pose_index: int, source: Source) -> bool:
+        """Read `source`'s estimator if it has new observations, enough of them; whether its
+        scales moved."""
+        n = self.config
+        odometry = source == "drift windows"
+        likelihood = self.windows if odometry else self.contrasts
+        least = n.min_drift_windows if odometry else n.min_contrasts
         if not self._fresh[source] or len(likelihood) < least:
             return False
         self._fresh[source] = 0
-        return True
-
-    def _read_odometry(self, pose_index: int) -> bool:
-        n = self.config
-        if not self._ready("drift windows", self.windows, n.min_drift_windows):
-            return False
-        current = np.array(self.scales.odometry)
-        reading = self.windows.reading(current, self.bounds, n.evidence, n.deadband, n.drop)
+        current = np.array(self.scales.odometry if odometry else self.scales.measurement)
+        reading = likelihood.reading(current, self.bounds, n.evidence, n.deadband, n.drop)
         if reading.scales is None:
             return False
         after = tuple(float(s) for s in reading.scales)
-        self._moved(pose_index, "drift windows", ODOMETRY_AXES, current, after, reading.evidence)
-        self.scales = NoiseScales(after, self.scales.measurement)
-        return True
-
-    def _read_measurement(self, pose_index: int) -> bool:
-        n = self.config
-        if not self._ready("detections", self.contrasts, n.min_contrasts):
-            return False
-        current = np.array(self.scales.measurement)
-        reading = self.contrasts.reading(current, self.bounds, n.evidence, n.deadband, n.drop)
-        if reading.scales is None:
-            return False
-        after = tuple(float(s) for s in reading.scales)
-        self._moved(
-            pose_index, "detections", MEASUREMENT_COMPONENTS, current, after, reading.evidence
+        self._moved(pose_index, source, likelihood.names, current, after, reading.evidence)
+        self.scales = (
+            NoiseScales(after, self.scales.measurement)
+            if odometry
+            else NoiseScales(self.scales.odometry, after)
         )
-        self.scales = NoiseScales(self.scales.odometry, after)
         return True
 
     def _moved(

@@ -4,10 +4,10 @@ A keyframe's K detections of mapped point landmarks have residuals r_k = h(x, l_
 the current estimate. Stacked, r = H_x e + (the landmarks' errors seen through h) - n, e the
 pose's error and n the detections' noise. What the detections share, the pose's error (and an
 odometry stated wrong with it), is projected out: with N an orthonormal basis of what H_x's
-columns leave (3K - 6 directions; a keyframe needs three detections, two in a plane), y =
-N^T W r, W the
-detections' noise whitened at the scales in use. A landmark estimated from n_k detections
-holds 1 / n_k of each (its residual is the detection's noise less that share), so that
+columns leave (3K - 6 directions; a keyframe needs three detections, two in a plane),
+y = N^T W r, W the detections' noise whitened at the scales in use. A landmark estimated from
+n_k detections holds 1 / n_k of each (its residual is the detection's noise less that share),
+so that
 
     y ~ N(0, N^T W blockdiag((1 - 1 / n_k) Gamma_k(s)) W^T N),
 

@@ -142,12 +142,15 @@ class NoiseLearner:
                 self.contrasts.add(observation)
                 self._fresh["detections"] += 1
         self._observed_to = pose_index + 1
-        for length in self.drift.due(pose_index, n.update_every):
+        due = self.drift.due(pose_index, n.update_every)
+        # the longest window's poses hold every shorter one's: each read once
+        first_due = pose_index - max(due, default=-1)
+        span = [estimate.pose(X(k)) for k in range(first_due, pose_index + 1)]
+        for length in due:
             first = pose_index - length
-            poses = [estimate.pose(X(k)) for k in range(first, pose_index + 1)]
             joint = estimate.joint_covariance([X(first), X(pose_index)])
             used = np.array(self.scales.odometry)
-            self.windows.add(self.drift.observe(poses, joint, used))
+            self.windows.add(self.drift.observe(span[-(length + 1) :], joint, used))
             self._fresh["drift windows"] += 1
         odometry = self._read(pose_index, "drift windows")
         measurement = self._read(pose_index, "detections")

@@ -44,6 +44,8 @@ class AssociationConfig:
     joint_confidence: Probability
     ambiguity_log_odds: LogOdds
     max_search_nodes: SearchNodes
+    max_joint_detections: Rounds
+    max_keyframe_nodes: SearchNodes
     min_loop_pairs: Rounds
     crowded_loop_pairs: Rounds
     joint_marginals: bool
@@ -93,6 +95,8 @@ class MergeConfig:
     local_detection_noise: bool
     max_partners: Rounds
     max_landmarks: Annotated[int, within(2, 10**5)]
+    max_pairs: Annotated[int, within(1, 10**5)]
+    max_check_nodes: SearchNodes
     drift_scale_weight: Annotated[float, UNIT]
     max_drift_scale: Annotated[float, within(1.0, 1e6)]
     drift_scale_steps: Rounds
@@ -165,7 +169,7 @@ def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
     default = settings.config_path("default.toml")
     config = settings.load(Config, default, path)
-    n, a = config.noise, config.association
+    n, a, m = config.noise, config.association, config.merges
     source = path if path is not None else default
     settings.require(
         all(n.min_scale <= x <= n.max_scale for x in (*n.odometry_scale, *n.measurement_scale)),
@@ -176,5 +180,10 @@ def load_config(path: str | Path | None = None) -> Config:
         a.crowded_loop_pairs >= a.min_loop_pairs,
         source,
         "association.crowded_loop_pairs must be >= association.min_loop_pairs",
+    )
+    settings.require(
+        m.max_pairs >= m.max_partners,
+        source,
+        "merges.max_pairs must be >= merges.max_partners (a source is taken with its partners)",
     )
     return config

@@ -7,13 +7,20 @@ import numpy as np
 import pytest
 
 from pipeline.backend.association import gaussian_log_density
+from pipeline.backend.budget import SearchBudget
 from pipeline.backend.methods.maxmixture.joint_association import (
+    EMPTY,
     NONE,
     DetectionOptions,
     KeyframeProblem,
+    _group_problem,
+    _Search,
     associate_keyframe,
+    detection_groups,
     indistinguishable,
+    joint_log_likelihood,
     score,
+    stacked_pairs,
 )
 
 H_POSE = np.hstack([np.zeros((3, 3)), -np.eye(3)])
@@ -141,3 +148,107 @@ def test_an_established_lookalike_hidden_by_the_pose_uncertainty_does_not_take_i
     p.covariance[9:12, 9:12] = np.eye(3) * 25.0
     assert indistinguishable(p, 0, 0, 1)
     assert associate_keyframe(p, 3.0, 1000).assignment == [0]
+
+
+def crowded(detections: int, rival_m: float = 0.2, pose_sigma: float = 0.05) -> KeyframeProblem:
+    """Detection i sees landmark i, and its neighbour i + 1 lies `rival_m` off: within the
+    gate, an option for the search to rule out, in a keyframe of as many landmarks."""
+    rng = np.random.default_rng(0)
+    dets = []
+    for i in range(detections):
+        own = rng.normal(size=3) * 0.03
+        rival = own + np.array([rival_m, 0.0, 0.0])
+        dets.append(detection([own, rival], [i, (i + 1) % detections]))
+    return problem(dets, [1e-3] * 3 + [pose_sigma] * 3, landmarks=detections)
+
+
+def test_a_spent_keyframe_budget_leaves_every_detection_to_the_null():
+    p = crowded(6)
+    decision = associate_keyframe(p, 3.0, 1000, budget=SearchBudget(3))
+    assert not decision.finished and decision.assignment == [NONE] * 6
+    # spent by a search before: the next decides nothing either, and spends nothing
+    spent = SearchBudget(100, spent=100)
+    assert associate_keyframe(p, 3.0, 1000, budget=spent).assignment == [NONE] * 6
+    assert spent.spent == 100
+
+
+def test_rivals_left_unfinished_leave_their_pairings_unmade():
+    p = crowded(6, rival_m=0.3, pose_sigma=0.1)  # each neighbour a rival to search
+    counted = SearchBudget(10**6)
+    whole = associate_keyframe(p, 3.0, 1000, budget=counted)
+    assert whole.finished and all(whole.unique)
+    best_only = _Search(p, 1000, None)
+    best_only.run()
+    # enough for the best assignment, not for its rivals: found, but nothing unique
+    decision = associate_keyframe(p, 3.0, 1000, budget=SearchBudget(best_only.nodes))
+    assert decision.assignment == whole.assignment and not any(decision.unique)
+
+
+def test_a_search_within_its_budget_decides_as_without_one():
+    p = crowded(8)
+    unbounded = associate_keyframe(p, 3.0, 1000)
+    budget = SearchBudget(10**6)
+    bounded = associate_keyframe(p, 3.0, 1000, budget=budget)
+    assert bounded == unbounded and 0 < budget.spent < 10**6
+
+
+def test_groups_decide_as_the_whole_keyframe_where_it_fits():
+    p = crowded(8)
+    whole = associate_keyframe(p, 3.0, 10**5)
+    assert whole.assignment == [0] * 8 and all(whole.unique)
+    assert associate_keyframe(p, 3.0, 10**5, max_detections=3) == whole
+
+
+def test_detection_groups_keep_linked_detections_together_as_far_as_a_group_holds_them():
+    # detections 0-2 share landmark 0, 3-4 landmark 5, 5 has its own, 6 none
+    dets = [detection([[0.0, 0, 0]], [0]) for _ in range(3)]
+    dets += [detection([[0.0, 0, 0]], [5]) for _ in range(2)]
+    dets += [detection([[0.0, 0, 0]], [7]), detection([], [])]
+    p = problem(dets, [1e-3] * 6, landmarks=8)
+    assert detection_groups(p, 10) == [[0, 1, 2, 3, 4, 5]]
+    assert detection_groups(p, 3) == [[0, 1, 2], [3, 4, 5]]
+    assert detection_groups(p, 2) == [[0, 1], [2], [3, 4], [5]]
+
+
+def test_a_group_is_given_the_pairings_before_it():
+    # The pose slid 0.3 m in x (sigma 0.5 m): given detection 0's pairing, which says so,
+    # detection 1's residual is the same 0.3 m explained, its covariance the pose's pinned.
+    dets = [detection([[0.3, 0, 0]], [0]), detection([[0.3, 0, 0]], [1])]
+    p = problem(dets, [1e-3] * 3 + [0.5] * 3, landmarks=2)
+    given = stacked_pairs(p, [(0, 0)])
+    alone, _ = _group_problem(p, [1], set(), [], EMPTY)
+    cut, kept = _group_problem(p, [1], {0}, [(0, 0)], given)
+    assert list(kept[0]) == [0] and cut.covariance.shape == (9, 9) == alone.covariance.shape
+    assert abs(cut.detections[0].residuals[0, 0]) < 0.05 < alone.detections[0].residuals[0, 0]
+    assert cut.covariance[3, 3] < 0.01 < alone.covariance[3, 3]
+    # the chain rule: the group's likelihood given the first is the pair's over the first's
+    both, _ = joint_log_likelihood(p, [(0, 0), (1, 0)])
+    first, _ = joint_log_likelihood(p, [(0, 0)])
+    second, _ = joint_log_likelihood(cut, [(0, 0)])
+    assert second == pytest.approx(both - first)
+
+
+def test_a_crowded_keyframe_is_searched_in_bounded_work():
+    """300 detections each with a rival in its gate: searched whole, no search finishes and
+    nothing is paired; in groups of 12, every search is one of 12 detections, the nodes grow
+    with the detections, and every pairing is made."""
+    p = crowded(300)
+    counted = SearchBudget(10**9)
+    whole = associate_keyframe(p, 3.0, 500, budget=counted)
+    assert not whole.finished and whole.assignment == [NONE] * 300
+    counted = SearchBudget(10**9)
+    depths = []
+    run = _Search.run
+
+    def recording(search):
+        depths.append(len(search.order))
+        return run(search)
+
+    _Search.run = recording
+    try:
+        grouped = associate_keyframe(p, 3.0, 500, max_detections=12, budget=counted)
+    finally:
+        _Search.run = run
+    assert grouped.finished and grouped.assignment == [0] * 300 and all(grouped.unique)
+    assert max(depths) <= 12
+    assert counted.spent <= 10 * 300

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from pipeline.backend.association import chi2_gate, gaussian_log_density
+from pipeline.backend.budget import SearchBudget
 from pipeline.backend.joint_compatibility import (
     PairSet,
     SeededSearch,
@@ -277,8 +278,8 @@ def drifted_loop(sources: int, partners: int, understated: float, seed: int = 0)
 
 def test_a_grown_set_scores_what_its_pairs_score_together():
     ps, truth = drifted_loop(5, 3, 30.0)
-    chosen, score = grown_pairs(ps, 0.95, (truth[2],))
-    assert chosen[0] == truth[2] and sorted(chosen) == sorted(truth)
+    chosen, score, finished = grown_pairs(ps, 0.95, (truth[2],))
+    assert finished and chosen[0] == truth[2] and sorted(chosen) == sorted(truth)
     assert score == pytest.approx(ps.score(list(chosen)))
     # each landmark in one pair at most
     landmarks = [j for p in chosen for j in ps.pairs[p]]
@@ -359,3 +360,56 @@ def test_sets_scored_together_score_as_each_alone():
         alone = pairs.log_likelihood(chosen)
         assert together[k] == pytest.approx(alone[0], rel=1e-12)
         assert smallest[k] == pytest.approx(alone[1], rel=1e-12)
+
+
+def test_a_spent_check_budget_merges_nothing():
+    ps = pair_set([(5, 2)], [[0.05, -0.02, 0.0]], independent(2, 0.1))
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 1000, budget=SearchBudget(10)) == [(5, 2)]
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 1000, budget=SearchBudget(1)) == []
+    spent = SearchBudget(10, spent=10)  # by the check's searches before
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 1000, budget=spent) == []
+
+
+def test_a_check_within_its_budget_merges_as_without_one():
+    ps, truth = drifted_loop(6, 3, 30.0, seed=1)
+    unbounded = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 100_000)
+    budget = SearchBudget(10**7)
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 100_000, budget=budget) == unbounded
+    assert sorted(unbounded) == sorted(ps.pairs[p] for p in truth) and budget.spent > 0
+    # seeded, as a search too large to finish is made again
+    seeded = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 20, seeds=3)
+    budget = SearchBudget(10**7)
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 20, seeds=3, budget=budget) == seeded
+    assert sorted(seeded) == sorted(unbounded)
+
+
+def test_a_loop_whose_rivals_go_unsearched_stays_open():
+    ps, _ = drifted_loop(6, 3, 30.0, seed=1)
+    best = SearchBudget(10**7)
+    best_pairs(ps, 0.95, 100_000, budget=best)
+    assert best_pairs(ps, 0.95, 100_000)[0] == best_pairs(ps, 0.95, 100_000, budget=best)[0]
+    # the best set's nodes, and not a rival's: the loop is contested, nothing merges
+    assert pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 100_000, budget=SearchBudget(best.spent)) == []
+
+
+def test_grown_sets_stop_unfinished_when_the_budget_is_spent():
+    ps, truth = drifted_loop(5, 3, 30.0)
+    chosen, _, finished = grown_pairs(ps, 0.95, (truth[2],), budget=SearchBudget(10**6))
+    assert finished and sorted(chosen) == sorted(truth)
+    _, _, finished = grown_pairs(ps, 0.95, (truth[2],), budget=SearchBudget(20))
+    assert not finished
+    _, _, finished = SeededSearch(ps, 0.95, 5, SearchBudget(20))(ps, 0.95, 50)
+    assert not finished
+
+
+def test_a_large_check_spends_nodes_bounded_by_its_pairs():
+    """56 loop pairs, too many for the search to finish in 50 nodes: the seeded search and
+    every rival's grow a set from each seed, a step costing a node an open pair, so that
+    the nodes stay within (1 + seeds) steps of every pair for the best and for each rival."""
+    ps, truth = drifted_loop(14, 4, 30.0, seed=2)
+    budget = SearchBudget(10**9)
+    merged = pairs_to_merge(ps, 0.95, 8.0, 2.0, 3.0, 50, seeds=5, budget=budget)
+    assert sorted(merged) == sorted(ps.pairs[p] for p in truth)
+    P, sources, seeds = len(ps.pairs), 14, 5
+    searches = 1 + len(truth) * 3  # the best set's, and at most 3 rivals a merged pair
+    assert budget.spent <= 50 + searches * (1 + seeds) * P * sources

@@ -37,11 +37,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 
 from pipeline.backend.association import LOG_2PI, chi2_gate
+from pipeline.backend.budget import SearchBudget
 from pipeline.geometry import skew
 
 
@@ -184,17 +185,12 @@ def difference_covariance(
 ) -> np.ndarray:
     """Joint covariance of the differences l_a - l_b of `pairs`, from the joint covariance of
     the landmarks (`slots[j]` = landmark j's block index in it)."""
-    n, P = landmark_covariance.shape[0] // dim, len(pairs)
-    blocks = landmark_covariance.reshape(n, dim, n, dim).transpose(0, 2, 1, 3)
-    a = np.array([slots[x] for x, _ in pairs], dtype=int)
-    b = np.array([slots[y] for _, y in pairs], dtype=int)
-    C = (
-        blocks[a[:, None], a[None, :]]
-        - blocks[a[:, None], b[None, :]]
-        - blocks[b[:, None], a[None, :]]
-        + blocks[b[:, None], b[None, :]]
-    )
-    C = C.transpose(0, 2, 1, 3).reshape(P * dim, P * dim)
+    offsets = np.arange(dim)
+    a = (np.array([slots[x] for x, _ in pairs], dtype=int)[:, None] * dim + offsets).ravel()
+    b = (np.array([slots[y] for _, y in pairs], dtype=int)[:, None] * dim + offsets).ravel()
+    # the four blocks gathered (P dim, P dim) each, not the whole (n, n, dim, dim) rearranged
+    cov = landmark_covariance
+    C = cov[np.ix_(a, a)] - cov[np.ix_(a, b)] - cov[np.ix_(b, a)] + cov[np.ix_(b, b)]
     return 0.5 * (C + C.T)
 
 
@@ -208,8 +204,10 @@ class _Search:
         max_nodes: int,
         forbidden: frozenset[int] = frozenset(),
         required: int | None = None,
+        budget: SearchBudget | None = None,
     ):
         self.pair_set = pair_set
+        self.budget = budget
         sources = sorted({a for a, _ in pair_set.pairs})
         options = [
             [p for p, (a, _) in enumerate(pair_set.pairs) if a == s and p not in forbidden]
@@ -239,7 +237,7 @@ class _Search:
 
     def _visit(self, depth: int, chosen: list[int], used: set[int], score: float) -> None:
         self.nodes += 1
-        if self.nodes > self.max_nodes:
+        if self.nodes > self.max_nodes or (self.budget is not None and not self.budget.spend()):
             self.exhausted = True
             return
         if score + self.remaining[depth] <= self.best_score:
@@ -266,11 +264,12 @@ def best_pairs(
     max_nodes: int,
     forbidden: frozenset[int] = frozenset(),
     required: int | None = None,
+    budget: SearchBudget | None = None,
 ) -> tuple[tuple[int, ...], float, bool]:
     """The jointly compatible set of pairs with the highest score (each landmark in one pair at
     most), without the `forbidden` pairs and with the `required` one; its score; and whether
-    the search finished within `max_nodes` nodes."""
-    search = _Search(pair_set, confidence, max_nodes, forbidden, required)
+    the search finished within `max_nodes` nodes (and the shared `budget`'s)."""
+    search = _Search(pair_set, confidence, max_nodes, forbidden, required, budget)
     chosen, score = search.run()
     return chosen, score, not search.exhausted
 
@@ -287,11 +286,76 @@ def _block_terms(mean: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.n
     return np.where(sign > 0, log_lik, -np.inf), np.where(sign > 0, d2, np.inf)
 
 
-def _diagonal_blocks(covariance: np.ndarray, d: int) -> np.ndarray:
-    """(S, k, d, d) diagonal blocks of covariances (S, k d, k d)."""
-    S, k = covariance.shape[0], covariance.shape[1] // d
-    blocks = covariance.reshape(S, k, d, k, d).transpose(0, 1, 3, 2, 4)
-    return blocks[:, np.arange(k), np.arange(k)]
+def _pair_blocks(covariance: np.ndarray, pairs: np.ndarray, d: int) -> np.ndarray:
+    """(k, d, d): the diagonal blocks of `covariance` (P d, P d) of the pairs `pairs` (k,)."""
+    rows = pairs[:, None] * d + np.arange(d)
+    return covariance[rows[:, :, None], rows[:, None, :]]
+
+
+def _cholesky(blocks: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factors of symmetric blocks (..., d, d); a block that is not positive
+    definite (the last pair of a set may leave its difference nearly determined) has its
+    eigenvalues raised to a tiny fraction of its largest first."""
+    blocks = 0.5 * (blocks + np.swapaxes(blocks, -1, -2))
+    try:
+        return np.linalg.cholesky(blocks)
+    except np.linalg.LinAlgError:
+        values, vectors = np.linalg.eigh(blocks)
+        floor = 1e-12 * np.maximum(np.max(np.abs(values), axis=-1, keepdims=True), 1e-300)
+        values = np.maximum(values, floor)
+        return np.linalg.cholesky((vectors * values[..., None, :]) @ np.swapaxes(vectors, -1, -2))
+
+
+class _Conditioned:
+    """The open pairs' differences under each drift scale given the pairs chosen so far: each
+    one's conditional mean (S, n, d) and covariance block (S, n, d, d). The chosen pairs' part
+    of the covariance is kept as a factor W (S, n d, d k), C_c given them = C_c - W W^T, so that
+    choosing a pair costs O(S n d^2 k) for k chosen, where conditioning the whole covariance
+    cost O(S (n d)^2 d) and its memory O(S (n d)^2). The scaled covariances
+    C_c = C + (c - 1) G G^T are never formed: only the columns of the pair chosen."""
+
+    def __init__(self, pair_set: PairSet, alive: np.ndarray):
+        d = pair_set.dim
+        self.pair_set = pair_set
+        self.alive = alive  # pair indices of the open pairs, in the order of the arrays
+        self.rows = (alive[:, None] * d + np.arange(d)).ravel()  # their rows in the covariance
+        self.growth = pair_set.scales - 1.0
+        S, n = len(self.growth), len(alive)
+        blocks = _pair_blocks(pair_set.covariance, alive, d)
+        self.blocks = np.repeat(blocks[None], S, axis=0)
+        if pair_set.drift is not None:
+            G = pair_set.drift[self.rows].reshape(n, d, -1)
+            self.blocks += self.growth[:, None, None, None] * (G @ np.swapaxes(G, 1, 2))[None]
+        differences = pair_set.differences.astype(float)[alive]
+        self.mean = np.repeat(differences[None], S, axis=0)
+        self.W = np.zeros((S, n * d, 0))
+
+    def terms(self) -> tuple[np.ndarray, np.ndarray]:
+        """(log N(mean; 0, block), its squared distance) of each open pair, (S, n) each."""
+        return _block_terms(self.mean, self.blocks)
+
+    def choose(self, slot: int, dropped: np.ndarray) -> None:
+        """Condition on the open pair at `slot`, then close the pairs `dropped` (a mask over
+        the open pairs: those sharing a landmark with it, itself included)."""
+        d, S, n = self.pair_set.dim, len(self.growth), len(self.alive)
+        own = np.arange(slot * d, (slot + 1) * d)
+        L = _cholesky(self.blocks[:, slot])  # (S, d, d)
+        column = self.pair_set.covariance[np.ix_(self.rows, self.rows[own])]  # (n d, d)
+        column = np.repeat(column[None], S, axis=0)
+        if self.pair_set.drift is not None:
+            G = self.pair_set.drift[self.rows]
+            column += self.growth[:, None, None] * (G @ G[own].T)[None]
+        column -= self.W @ np.swapaxes(self.W[:, own], 1, 2)
+        new = np.swapaxes(np.linalg.solve(L, np.swapaxes(column, 1, 2)), 1, 2)  # C L^-T
+        z = np.linalg.solve(L, self.mean[:, slot][..., None])[..., 0]  # (S, d)
+        blocks = new.reshape(S, n, d, d)
+        self.mean = self.mean - np.einsum("snij,sj->sni", blocks, z)
+        self.blocks = self.blocks - blocks @ np.swapaxes(blocks, -1, -2)
+        kept = ~dropped
+        kept_rows = np.repeat(kept, d)
+        self.W = np.concatenate([self.W, new], axis=2)[:, kept_rows]
+        self.mean, self.blocks = self.mean[:, kept], self.blocks[:, kept]
+        self.alive, self.rows = self.alive[kept], self.rows[kept_rows]
 
 
 def grown_pairs(
@@ -299,57 +363,49 @@ def grown_pairs(
     confidence: float,
     start: tuple[int, ...] = (),
     forbidden: frozenset[int] = frozenset(),
-) -> tuple[tuple[int, ...], float]:
+    budget: SearchBudget | None = None,
+) -> tuple[tuple[int, ...], float, bool]:
     """A jointly compatible set grown greedily from the pairs `start`: each step adds the pair
     that raises the score most, while one does and the set passes the joint gate; with its
-    score (`PairSet.score`'s). Under each scale, each pair added conditions the differences
-    still open, once (their scores add up along the way), and those sharing a landmark with
-    it drop out."""
+    score (`PairSet.score`'s), and whether it finished within the `budget` (a step looks at
+    every open pair: it spends a node for each). Under each scale, each pair added conditions the
+    differences still open (`_Conditioned`; their scores add up along the way), and those
+    sharing a landmark with it drop out."""
     d = pair_set.dim
     alive = np.array(
         [p for p in range(len(pair_set.pairs)) if p not in forbidden or p in start], dtype=int
     )
-    rows = (alive[:, None] * d + np.arange(d)).ravel()
-    cov = np.array(pair_set.scaled_covariances(rows))  # (S, m, m), given the chosen pairs
-    mean = np.tile(pair_set.differences.astype(float).ravel()[rows], (len(cov), 1))
-    with_landmark: dict[int, list[int]] = {}
-    for q, pair in enumerate(pair_set.pairs):
-        for j in pair:
-            with_landmark.setdefault(j, []).append(q)
+    open_pairs = _Conditioned(pair_set, alive)
+    landmarks = np.array(pair_set.pairs, dtype=np.int64).reshape(-1, 2)
     weights = pair_set.log_scale_weights
     log_lik = np.zeros(len(weights))  # the chosen set's, per scale
     d2_total = np.zeros(len(weights))
     chosen: list[int] = []
     prior = 0.0
 
-    def options() -> tuple[np.ndarray, np.ndarray]:
-        k = len(alive)
-        return _block_terms(mean.reshape(len(cov), k, d), _diagonal_blocks(cov, d))
-
     def add(slot: int, slot_log_lik: np.ndarray, slot_d2: np.ndarray) -> None:
-        nonlocal alive, mean, cov, log_lik, d2_total, prior
-        p = int(alive[slot])
+        nonlocal log_lik, d2_total, prior
+        p = int(open_pairs.alive[slot])
         chosen.append(p)
         log_lik = log_lik + slot_log_lik
         d2_total = d2_total + slot_d2
         prior += float(pair_set.log_prior[p])
-        own = np.arange(slot * d, (slot + 1) * d)
-        gain = np.swapaxes(np.linalg.solve(cov[:, own][:, :, own], cov[:, own]), 1, 2)
-        a, b = pair_set.pairs[p]
-        kept = np.repeat(~np.isin(alive, with_landmark[a] + with_landmark[b]), d)
-        mean = (mean - np.einsum("smd,sd->sm", gain, mean[:, own]))[:, kept]
-        cov = (cov - gain @ cov[:, own])[:, kept][:, :, kept]
-        alive = alive[kept[::d]]
+        sharing = np.isin(landmarks[open_pairs.alive], landmarks[p]).any(axis=1)
+        open_pairs.choose(slot, sharing)
 
     for p in start:
-        ll, d2 = options()
-        slot = int(np.flatnonzero(alive == p)[0])
+        if budget is not None and not budget.spend(len(open_pairs.alive)):
+            return tuple(chosen), -math.inf, False
+        ll, d2 = open_pairs.terms()
+        slot = int(np.flatnonzero(open_pairs.alive == p)[0])
         add(slot, ll[:, slot], d2[:, slot])
     score = float(np.logaddexp.reduce(weights + log_lik)) + prior if chosen else 0.0
-    while len(alive):
-        ll, d2 = options()
+    while len(open_pairs.alive):
+        if budget is not None and not budget.spend(len(open_pairs.alive)):
+            return tuple(chosen), score, False
+        ll, d2 = open_pairs.terms()
         trial = np.logaddexp.reduce((weights + log_lik)[:, None] + ll, axis=0)
-        trial = trial + prior + pair_set.log_prior[alive]
+        trial = trial + prior + pair_set.log_prior[open_pairs.alive]
         gate = chi2_gate((len(chosen) + 1) * d, confidence)
         trial = np.where(np.min(d2_total[:, None] + d2, axis=0) <= gate, trial, -np.inf)
         slot = int(np.argmax(trial))
@@ -357,7 +413,11 @@ def grown_pairs(
             break
         add(slot, ll[:, slot], d2[:, slot])
         score = float(trial[slot])
-    return tuple(chosen), score
+    return tuple(chosen), score, True
+
+
+# Pairs whose conditioning on one another `seed_estimates` computes in one stack.
+SEED_CHUNK = 32
 
 
 def seed_estimates(pair_set: PairSet, confidence: float) -> np.ndarray:
@@ -365,33 +425,46 @@ def seed_estimates(pair_set: PairSet, confidence: float) -> np.ndarray:
     its own gain plus, for every other source, the most one of its pairs adds given this pair
     alone. A loop pair fixes the correction of the map that the rest of its set must share, so
     given it the others' differences are nearly independent. Pairs outside the gate alone
-    under every scale estimate -inf."""
+    under every scale estimate -inf. Computed for `SEED_CHUNK` pairs at a time."""
     n, d = len(pair_set.pairs), pair_set.dim
-    covariances = np.array(pair_set.scaled_covariances(np.arange(n * d)))
-    S = len(covariances)
-    C = covariances.reshape(S, n, d, n, d).transpose(0, 1, 3, 2, 4)  # (S, n, n, d, d)
-    D = pair_set.differences.astype(float)
     everyone = np.arange(n)
+    scales = _Conditioned(pair_set, everyone)
+    S = len(scales.growth)
+    own_blocks = scales.blocks  # (S, n, d, d)
+    D = pair_set.differences.astype(float)
     sources = np.array([a for a, _ in pair_set.pairs])
     groups = [sources == s for s in np.unique(sources)]
     gate = chi2_gate(d, confidence)
     weights = pair_set.log_scale_weights
+    own, own_d2 = _block_terms(np.broadcast_to(D, (S, n, d)), own_blocks)  # (S, n)
     out = np.full(n, -np.inf)
-    for q in range(n):
-        own, d2 = _block_terms(np.broadcast_to(D[q], (S, d)), C[:, q, q])
-        if np.min(d2) > gate:
+    candidates = np.flatnonzero(np.min(own_d2, axis=0) <= gate)
+    for chunk in np.array_split(candidates, max(1, -(-len(candidates) // SEED_CHUNK))):
+        if not len(chunk):
             continue
-        K = C[:, :, q] @ np.linalg.inv(C[:, q, q])[:, None]  # (S, n, d, d)
+        Q = len(chunk)
+        # C_c[r, q] for every pair r and seed q of the chunk: (S, Q, n, d, d)
+        rows = (chunk[:, None] * d + np.arange(d)).ravel()
+        cross = pair_set.covariance[:, rows].reshape(n, d, Q, d).transpose(2, 0, 1, 3)
+        cross = np.repeat(cross[None], S, axis=0)
+        if pair_set.drift is not None:
+            G = pair_set.drift.reshape(n, d, -1)
+            cross = (
+                cross
+                + scales.growth[:, None, None, None, None]
+                * np.einsum("nir,qjr->qnij", G, G[chunk])[None]
+            )
+        K = cross @ np.linalg.inv(own_blocks[:, chunk])[:, :, None]  # (S, Q, n, d, d)
         # pair r given q: D_r - K_r D_q, C_rr - K_r C_qr
-        mean = D[None] - np.einsum("snij,j->sni", K, D[q])
-        cov = C[:, everyone, everyone] - np.einsum("snij,snjl->snil", K, C[:, q])
-        gains, d2 = _block_terms(mean, cov)
+        mean = D[None, None] - np.einsum("sqnij,qj->sqni", K, D[chunk])
+        cov = own_blocks[:, None] - K @ np.swapaxes(cross, -1, -2)
+        gains, d2 = _block_terms(mean, cov)  # (S, Q, n)
         gains = np.where(d2 <= gate, gains + pair_set.log_prior, -np.inf)
-        gains[:, sources == sources[q]] = -np.inf
-        total = own + pair_set.log_prior[q]
+        gains[:, sources[chunk][:, None] == sources[None, :]] = -np.inf
+        total = own[:, chunk] + pair_set.log_prior[chunk]  # (S, Q)
         for members in groups:
-            total = total + np.maximum(np.max(gains[:, members], axis=1), 0.0)
-        out[q] = float(np.logaddexp.reduce(weights + total))
+            total = total + np.maximum(np.max(gains[:, :, members], axis=2), 0.0)
+        out[chunk] = np.logaddexp.reduce(weights[:, None] + total, axis=0)
     return out
 
 
@@ -399,14 +472,17 @@ class SeededSearch:
     """`best_pairs` for a set of pairs too large to search whole, with its signature: sets
     grown (`grown_pairs`) from nothing and from each of the `seeds` loop pairs of highest
     `seed_estimates`, each of which fixes a correction of the map that the pairs grown on it
-    must share; always finished.
+    must share; finished unless the `budget` runs out.
 
     A rival (a set grown from a required pair) scores at least its pair's estimate: growth can
     miss a rival's best set, and an underrated rival leaves a pairing uncontested, so the
     estimate errs on the side of no merge."""
 
-    def __init__(self, pair_set: PairSet, confidence: float, seeds: int):
+    def __init__(
+        self, pair_set: PairSet, confidence: float, seeds: int, budget: SearchBudget | None = None
+    ):
         self.seeds = seeds
+        self.budget = budget
         self.estimates = seed_estimates(pair_set, confidence)
 
     def __call__(
@@ -418,17 +494,21 @@ class SeededSearch:
         required: int | None = None,
     ) -> tuple[tuple[int, ...], float, bool]:
         if required is not None:
-            chosen, score = grown_pairs(pair_set, confidence, (required,), forbidden)
-            return chosen, max(score, float(self.estimates[required])), True
-        best, best_score = grown_pairs(pair_set, confidence, (), forbidden)
+            chosen, score, finished = grown_pairs(
+                pair_set, confidence, (required,), forbidden, self.budget
+            )
+            return chosen, max(score, float(self.estimates[required])), finished
+        best, best_score, finished = grown_pairs(pair_set, confidence, (), forbidden, self.budget)
         loops = [p for p in range(len(pair_set.pairs)) if pair_set.loop[p] and p not in forbidden]
         for p in sorted(loops, key=lambda p: -self.estimates[p])[: self.seeds]:
-            if not np.isfinite(self.estimates[p]):
+            if not finished or not np.isfinite(self.estimates[p]):
                 break
-            chosen, score = grown_pairs(pair_set, confidence, (p,), forbidden)
+            chosen, score, finished = grown_pairs(
+                pair_set, confidence, (p,), forbidden, self.budget
+            )
             if score > best_score:
                 best, best_score = chosen, score
-        return best, best_score, True
+        return best, best_score, finished
 
 
 def _same_but_alike(pair_set: PairSet, p: tuple[int, int], q: tuple[int, int]) -> bool:
@@ -465,6 +545,7 @@ def pairs_to_merge(
     max_nodes: int,
     local_rivals: bool = True,
     seeds: int = 0,
+    budget: SearchBudget | None = None,
 ) -> list[tuple[int, int]]:
     """The pairs of the best set that are sure enough and that no rival comes close to.
 
@@ -477,13 +558,16 @@ def pairs_to_merge(
     `ambiguity_log_odds` of the best set: in a row of parked cars, a duplicate of one car
     is often as close to its neighbour (without `local_rivals`, only loop pairs have rivals).
     A search too large to finish within `max_nodes` is made again, rivals' too, by growing
-    sets from `seeds` loop pairs (`SeededSearch`); an unfinished search decides nothing."""
+    sets from `seeds` loop pairs (`SeededSearch`); an unfinished search decides nothing. Every
+    search spends the nodes it visits from `budget` (none: no bound beyond `max_nodes` a
+    search): once it is spent, what is left undecided stays apart (the best set unfinished:
+    no merge; a rival unfinished: its pair contested)."""
     if not pair_set.pairs:
         return []
-    search = best_pairs
+    search = partial(best_pairs, budget=budget)
     best, score, finished = search(pair_set, confidence, max_nodes)
-    if not finished and seeds > 0:
-        search = SeededSearch(pair_set, confidence, seeds)
+    if not finished and seeds > 0 and not (budget is not None and budget.exhausted):
+        search = SeededSearch(pair_set, confidence, seeds, budget)
         best, score, finished = search(pair_set, confidence, max_nodes)
     if not finished or not best:
         return []

@@ -16,6 +16,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L
 
 from pipeline.backend import association as assoc
+from pipeline.backend.budget import SearchBudget
 from pipeline.backend.candidates import PosePrediction, covariance_bound
 from pipeline.backend.decisions import MeasurementSpace, in_view
 from pipeline.backend.geometry import world_point_covariance
@@ -163,7 +164,8 @@ class MergeFinder:
         """(source, target) pairs that may be one landmark, by cheap tests only: each source's
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
-        marginal over them all must stay cheap, also after a long drift). `widest`: the
+        marginal over them all must stay cheap, also after a long drift) and `max_pairs`
+        pairs (the searches' arithmetic grows with them: `pairs_to_merge`). `widest`: the
         largest drift scale a loop is tested at, relative to the map's covariance. A source's
         partners are looked for only when its turn comes, so a keyframe that started thousands
         of landmarks costs the budget's worth of searches, not thousands."""
@@ -179,7 +181,7 @@ class MergeFinder:
         for a in sorted(sources, key=lambda j: -context.last_seen.get(j, -1)):
             mine = {(min(a, b), max(a, b)) for b in search.partners(a)} - pairs
             more = {j for pair in mine for j in pair} - involved
-            if len(involved) + len(more) > c.max_landmarks:
+            if len(involved) + len(more) > c.max_landmarks or len(pairs) + len(mine) > c.max_pairs:
                 break
             pairs |= mine
             involved |= more
@@ -286,6 +288,9 @@ class MergeFinder:
             ]
         )
         merged = []
+        # One budget for the check's searches: a check never takes unbounded time, however
+        # many pairs the map's covariance lets through (`budget.py`).
+        budget = SearchBudget(c.max_check_nodes)
         for group in pair_groups(pairs, loop):
             chosen = [pairs[p] for p in group]
             rows = np.concatenate([np.arange(kept[p] * DIM, (kept[p] + 1) * DIM) for p in group])
@@ -311,6 +316,7 @@ class MergeFinder:
                 c.max_search_nodes,
                 c.local_rivals,
                 c.search_seeds,
+                budget,
             )
             closed = [pair_set.pairs.index(pair) for pair in to_merge]
             if any(pair_set.loop[p] for p in closed):  # what this loop says of the drift

@@ -25,16 +25,41 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from pipeline.backend.association import LOG_2PI, chi2_gate
+from pipeline.backend.budget import SearchBudget
 
 NONE = -1
+
+
+@dataclass(frozen=True)
+class _Stacked:
+    """A set of pairs' stacked innovations, by the Cholesky factor L of their covariance S
+    (y = L^-1 nu) and their Jacobian's rows J: what one more pair needs to be scored without
+    factoring S again (O(m^2 d) instead of O(m^3) for m rows)."""
+
+    L: np.ndarray  # (m, m)
+    y: np.ndarray  # (m,)
+    J: np.ndarray  # (m, n): rows of the stacked Jacobian over the joint's variables
+    log_det: float  # log det S
+
+    @property
+    def d2(self) -> float:
+        return float(self.y @ self.y)
+
+    @property
+    def log_likelihood(self) -> float:
+        return -0.5 * (self.d2 + self.log_det + len(self.y) * LOG_2PI)
+
+
+EMPTY = _Stacked(np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), 0.0)
 # A node of the assignment search: depth, the pairs (detection, option) so far, the landmark
-# slots they hold, their joint log-likelihood, and the priors of every detection's choice.
-Node = tuple[int, list[tuple[int, int]], frozenset[int], float, float]
+# slots they hold, their stacked innovations, and the priors of every detection's choice.
+Node = tuple[int, list[tuple[int, int]], frozenset[int], _Stacked, float]
 
 
 @dataclass(frozen=True)
@@ -99,19 +124,43 @@ class KeyframeProblem:
         return rows
 
 
-def _stack(problem: KeyframeProblem, pairs: list[tuple[int, int]]):
-    """Innovations and their covariance S = J Sigma J^T + Gamma for (detection, option) pairs."""
-    blocks = [problem.pair_rows(i, k) for i, k in pairs]
-    J = np.concatenate([jacobian for jacobian, _ in blocks])
-    J_sigma = np.concatenate([product for _, product in blocks])
-    nu = np.concatenate([problem.detections[i].residuals[k] for i, k in pairs])
-    gamma = np.zeros((len(nu), len(nu)))
-    row = 0
-    for i, _ in pairs:
-        d = problem.detections[i].dim
-        gamma[row : row + d, row : row + d] = problem.detections[i].covariance
-        row += d
-    return nu, J_sigma @ J.T + gamma
+def _extended(problem: KeyframeProblem, stacked: _Stacked, i: int, k: int) -> _Stacked | None:
+    """`stacked` with detection i's option k added: S's new rows are J_new Sigma [J_old; J_new]^T
+    plus Gamma, and L grows by a block row (L21 = S_new,old L^-T, L22 L22^T = the rest); None
+    where rounding leaves that rest not positive definite."""
+    J_new, J_sigma = problem.pair_rows(i, k)
+    det = problem.detections[i]
+    within = J_sigma @ J_new.T + det.covariance
+    if len(stacked.y):
+        L21 = solve_triangular(stacked.L, (J_sigma @ stacked.J.T).T, lower=True).T
+        within = within - L21 @ L21.T
+        rest = det.residuals[k] - L21 @ stacked.y
+    else:
+        L21 = np.zeros((det.dim, 0))
+        rest = det.residuals[k]
+    try:
+        L22 = np.linalg.cholesky(0.5 * (within + within.T))
+    except np.linalg.LinAlgError:
+        return None
+    m = len(stacked.y)
+    L = np.zeros((m + det.dim, m + det.dim))
+    L[:m, :m] = stacked.L
+    L[m:, :m] = L21
+    L[m:, m:] = L22
+    y = np.concatenate([stacked.y, solve_triangular(L22, rest, lower=True)])
+    J = np.concatenate([stacked.J, J_new]) if m else J_new
+    return _Stacked(L, y, J, stacked.log_det + 2.0 * float(np.sum(np.log(np.diag(L22)))))
+
+
+def stacked_pairs(problem: KeyframeProblem, pairs: list[tuple[int, int]]) -> _Stacked:
+    """The stacked innovations of (detection, option) pairs, added one at a time."""
+    stacked = EMPTY
+    for i, k in pairs:
+        grown = _extended(problem, stacked, i, k)
+        if grown is None:
+            raise np.linalg.LinAlgError("the pairs' innovation covariance is not positive definite")
+        stacked = grown
+    return stacked
 
 
 def joint_log_likelihood(
@@ -120,12 +169,8 @@ def joint_log_likelihood(
     """(log N(nu; 0, S), nu^T S^-1 nu) of the pairs' stacked innovations."""
     if not pairs:
         return 0.0, 0.0
-    nu, S = _stack(problem, pairs)
-    L = np.linalg.cholesky(0.5 * (S + S.T))
-    y = np.linalg.solve(L, nu)
-    d2 = float(y @ y)
-    log_det = 2.0 * float(np.sum(np.log(np.diag(L))))
-    return -0.5 * (d2 + log_det + len(nu) * LOG_2PI), d2
+    stacked = stacked_pairs(problem, pairs)
+    return stacked.log_likelihood, stacked.d2
 
 
 def score(problem: KeyframeProblem, assignment: list[int]) -> float:
@@ -149,9 +194,16 @@ def _max_gain(det: DetectionOptions) -> float:
 
 
 class _Search:
-    def __init__(self, problem: KeyframeProblem, max_nodes: int, required: tuple[int, int] | None):
+    def __init__(
+        self,
+        problem: KeyframeProblem,
+        max_nodes: int,
+        required: tuple[int, int] | None,
+        budget: SearchBudget | None = None,
+    ):
         self.problem = problem
         self.max_nodes = max_nodes
+        self.budget = budget
         self.required = required
         n = len(problem.detections)
         # The detections with candidates, fewest first: the tree narrows fastest. One without
@@ -178,7 +230,7 @@ class _Search:
         detections with candidates than Python's recursion allows levels. Each frame of the
         stack yields its node's children lazily, in the order a recursion would visit them."""
         stack: list[Iterator[Node]] = []
-        self._enter(stack, (0, [], frozenset(), 0.0, self.null_total))
+        self._enter(stack, (0, [], frozenset(), EMPTY, self.null_total))
         while stack and not self.exhausted:
             child = next(stack[-1], None)
             if child is None:
@@ -188,14 +240,14 @@ class _Search:
         return self.best, self.best_score
 
     def _enter(self, stack: list[Iterator[Node]], node: Node) -> None:
-        """Visit `node` (depth, pairs, used slots, joint log-likelihood, priors): bound it,
+        """Visit `node` (depth, pairs, used slots, stacked innovations, priors): bound it,
         take it as the best if it is a full assignment, else push its children."""
         self.nodes += 1
-        if self.nodes > self.max_nodes:
+        if self.nodes > self.max_nodes or (self.budget is not None and not self.budget.spend()):
             self.exhausted = True
             return
-        depth, pairs, _, log_lik, priors = node
-        current = log_lik + priors
+        depth, pairs, _, stacked, priors = node
+        current = stacked.log_likelihood + priors
         if current + self.remaining_gain[depth] <= self.best_score:
             return
         if depth == len(self.order):
@@ -209,7 +261,7 @@ class _Search:
     def _children(self, node: Node) -> Iterator[Node]:
         """The node's detection paired with each option its gate admits, then left to its
         null (not for the required pairing)."""
-        depth, pairs, used, log_lik, priors = node
+        depth, pairs, used, stacked, priors = node
         i = self.order[depth]
         det = self.problem.detections[i]
         options = range(len(det.slots))
@@ -218,15 +270,13 @@ class _Search:
         for k in options:
             if det.slots[k] in used:
                 continue
-            trial = [*pairs, (i, k)]
-            trial_lik, d2 = joint_log_likelihood(self.problem, trial)
-            dims = sum(self.problem.detections[a].dim for a, _ in trial)
-            if d2 > self.gates[dims]:
+            grown = _extended(self.problem, stacked, i, k)
+            if grown is None or grown.d2 > self.gates[len(grown.y)]:
                 continue
             prior = priors - det.null_log_density + det.log_prior[k]
-            yield depth + 1, trial, used | {det.slots[k]}, trial_lik, prior
+            yield depth + 1, [*pairs, (i, k)], used | {det.slots[k]}, grown, prior
         if self.required is None or depth > 0:
-            yield depth + 1, pairs, used, log_lik, priors
+            yield depth + 1, pairs, used, stacked, priors
 
 
 def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> bool:
@@ -236,7 +286,7 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     are likely one landmark mapped twice, which a merge will join; a choice between them is
     no ambiguity."""
     det = problem.detections[i]
-    n = problem.covariance.shape[0]
+    n = problem.covariance.shape[0]  # a group's cut joint, bounded (`_group_problem`)
     J = np.zeros((det.dim, n))
     for option, sign in ((k, 1.0), (other, -1.0)):
         slot = det.slots[option]
@@ -286,12 +336,16 @@ class KeyframeDecision:
     finished: bool  # the search ended within its node budget
 
 
-def associate_keyframe(
-    problem: KeyframeProblem, ambiguity_log_odds: float, max_nodes: int
+def _decide(
+    problem: KeyframeProblem,
+    ambiguity_log_odds: float,
+    max_nodes: int,
+    budget: SearchBudget | None,
 ) -> KeyframeDecision:
-    """The best assignment, and which of its pairings no rival comes close to."""
+    """The best assignment of all the problem's detections, and which of its pairings no rival
+    comes close to."""
     n = len(problem.detections)
-    search = _Search(problem, max_nodes, None)
+    search = _Search(problem, max_nodes, None, budget)
     best, best_score = search.run()
     if best is None or search.exhausted:
         return KeyframeDecision([NONE] * n, [False] * n, False)
@@ -304,9 +358,138 @@ def associate_keyframe(
         for other in range(len(problem.detections[i].slots)):
             if other == k or indistinguishable(problem, i, k, other):
                 continue
-            rival = _Search(problem, max_nodes, (i, other))
+            rival = _Search(problem, max_nodes, (i, other), budget)
             _, rival_score = rival.run()
             if rival.exhausted or rival_score >= best_score - ambiguity_log_odds:
                 unique[i] = False
                 break
     return KeyframeDecision(best, unique, True)
+
+
+def detection_groups(problem: KeyframeProblem, max_detections: int) -> list[list[int]]:
+    """The detections that have candidates, in groups of at most `max_detections` to be searched
+    one after the other: all in one when they fit; else those that may take the same landmark
+    (linked through shared candidates) in one group as far as it holds them, the links packed
+    into groups in the order of their first detection."""
+    with_options = [i for i, det in enumerate(problem.detections) if len(det.slots)]
+    if len(with_options) <= max_detections:
+        return [with_options] if with_options else []
+    parent = {i: i for i in with_options}
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    first_with: dict[int, int] = {}
+    for i in with_options:
+        for slot in problem.detections[i].slots:
+            j = first_with.setdefault(int(slot), i)
+            parent[root(i)] = root(j)
+    linked: dict[int, list[int]] = {}
+    for i in with_options:
+        linked.setdefault(root(i), []).append(i)
+    groups: list[list[int]] = [[]]
+    for members in linked.values():
+        for start in range(0, len(members), max_detections):
+            part = members[start : start + max_detections]
+            if len(groups[-1]) + len(part) > max_detections:
+                groups.append([])
+            groups[-1].extend(part)
+    return groups
+
+
+def _group_problem(
+    problem: KeyframeProblem,
+    group: list[int],
+    used: set[int],
+    given: list[tuple[int, int]],
+    given_stacked: _Stacked,
+) -> tuple[KeyframeProblem, list[np.ndarray]]:
+    """The detections of `group` as a problem of their own: the landmark slots `used` taken out
+    of their options, the joint cut down to the pose and the landmarks left (each node's
+    arithmetic then grows with the group, not the keyframe), conditioned on the innovations
+    of the pairings `given` (their `given_stacked`): a Kalman update, the chain rule of the
+    keyframe's likelihood. With the options kept of each detection (indices into its own)."""
+    kept = [
+        np.flatnonzero([int(slot) not in used for slot in problem.detections[i].slots])
+        for i in group
+    ]
+    detections = [problem.detections[i].subset(keep) for i, keep in zip(group, kept, strict=True)]
+    slots = sorted({int(slot) for det in detections for slot in det.slots})
+    dims = problem.block_dims[slots]
+    offsets = 6 + np.cumsum(dims) - dims  # each block's first row in the cut joint
+    rows = np.concatenate(
+        [np.arange(6)]
+        + [np.arange(o, o + w) for o, w in zip(problem.block_offsets[slots], dims, strict=True)]
+    )
+    covariance = problem.covariance[np.ix_(rows, rows)]
+    shift = np.zeros(len(rows))  # the state's mean given the pairings' innovations
+    if given:
+        J_sigma = np.concatenate([problem.pair_rows(i, k)[1][:, rows] for i, k in given])
+        A = solve_triangular(given_stacked.L, J_sigma, lower=True)  # L^-1 J Sigma
+        covariance = covariance - A.T @ A
+        shift = A.T @ given_stacked.y
+    slot_of = {slot: n for n, slot in enumerate(slots)}
+    moved = []
+    for det in detections:
+        cut_slots = np.array([slot_of[int(slot)] for slot in det.slots], dtype=int)
+        predicted = [
+            H_x @ shift[:6] + H_l @ shift[o : o + H_l.shape[1]]
+            for H_x, H_l, o in zip(
+                det.pose_jacobians, det.landmark_jacobians, offsets[cut_slots], strict=True
+            )
+        ]
+        residuals = det.residuals - np.array(predicted).reshape(det.residuals.shape)
+        moved.append(replace(det, slots=cut_slots, residuals=residuals))
+    cut = KeyframeProblem(
+        moved, 0.5 * (covariance + covariance.T), offsets, dims, problem.gate_confidence
+    )
+    return cut, kept
+
+
+def associate_keyframe(
+    problem: KeyframeProblem,
+    ambiguity_log_odds: float,
+    max_nodes: int,
+    max_detections: int | None = None,
+    budget: SearchBudget | None = None,
+) -> KeyframeDecision:
+    """The best assignment, and which of its pairings no rival comes close to.
+
+    Bounded work: every search (the best assignment's, each rival's) visits at most `max_nodes`
+    nodes and spends them from the keyframe's `budget`; an unfinished search decides nothing
+    (its detections go to the null, each a landmark of its own for a merge to join later; a
+    rival unfinished leaves its pairing unmade). A keyframe with more than `max_detections`
+    detections that have candidates is searched in groups (`detection_groups`), one after
+    the other (`_group_problem`), each given the first `max_detections` pairings the groups
+    before made, which pin the keyframe's pose: the searches' depth, and each node's
+    arithmetic, stay bounded however many detections the keyframe holds."""
+    n = len(problem.detections)
+    max_detections = max_detections or n
+    groups = detection_groups(problem, max_detections)
+    if len(groups) <= 1:
+        return _decide(problem, ambiguity_log_odds, max_nodes, budget)
+    assignment, unique, finished = [NONE] * n, [False] * n, True
+    used: set[int] = set()
+    given: list[tuple[int, int]] = []
+    given_stacked = EMPTY
+    for group in groups:
+        cut, kept = _group_problem(problem, group, used, given, given_stacked)
+        decision = _decide(cut, ambiguity_log_odds, max_nodes, budget)
+        finished = finished and decision.finished
+        for local, i in enumerate(group):
+            k = decision.assignment[local]
+            if k == NONE:
+                continue
+            assignment[i], unique[i] = int(kept[local][k]), decision.unique[local]
+            if not unique[i]:
+                continue
+            used.add(int(problem.detections[i].slots[assignment[i]]))
+            if len(given) >= max_detections:  # enough to pin the pose; more would cost O(m^2)
+                continue
+            grown = _extended(problem, given_stacked, i, assignment[i])
+            if grown is not None:
+                given, given_stacked = [*given, (i, assignment[i])], grown
+    return KeyframeDecision(assignment, unique, finished)

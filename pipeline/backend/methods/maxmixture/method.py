@@ -20,6 +20,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 from pipeline.backend.association import with_null_hypothesis
+from pipeline.backend.budget import SearchBudget
 from pipeline.backend.candidates import Candidates, KeyframeCovariance
 from pipeline.backend.decisions import (
     clutter_log_density,
@@ -104,6 +105,8 @@ class MaxMixture(MixtureMethod):
         ]
         kept = [np.arange(len(c)) for c in candidates]  # candidate index of each option
         pose_index = measurements[0].pose_index
+        # One budget for all of the keyframe's searches, however many detections it holds.
+        budget = SearchBudget(a.max_keyframe_nodes)
         while True:
             problem = KeyframeProblem(
                 detections=[o.subset(k) for o, k in zip(options, kept, strict=True)],
@@ -112,7 +115,9 @@ class MaxMixture(MixtureMethod):
                 block_dims=np.diff([*joint.offsets.values(), joint.matrix.shape[0]]),
                 gate_confidence=a.joint_confidence,
             )
-            decision = associate_keyframe(problem, a.ambiguity_log_odds, a.max_search_nodes)
+            decision = associate_keyframe(
+                problem, a.ambiguity_log_odds, a.max_search_nodes, a.max_joint_detections, budget
+            )
             chosen = [
                 int(kept[i][k]) if k != NONE and unique else NONE
                 for i, (k, unique) in enumerate(

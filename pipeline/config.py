@@ -169,7 +169,7 @@ def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
     default = settings.config_path("default.toml")
     config = settings.load(Config, default, path)
-    n, a, m = config.noise, config.association, config.merges
+    n, a = config.noise, config.association
     source = path if path is not None else default
     settings.require(
         all(n.min_scale <= x <= n.max_scale for x in (*n.odometry_scale, *n.measurement_scale)),
@@ -180,10 +180,5 @@ def load_config(path: str | Path | None = None) -> Config:
         a.crowded_loop_pairs >= a.min_loop_pairs,
         source,
         "association.crowded_loop_pairs must be >= association.min_loop_pairs",
-    )
-    settings.require(
-        m.max_pairs >= m.max_partners,
-        source,
-        "merges.max_pairs must be >= merges.max_partners (a source is taken with its partners)",
     )
     return config

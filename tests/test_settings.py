@@ -118,7 +118,7 @@ NEW_BACKEND_SETTINGS = {  # the association, mixture, merge and noise keys of ba
     "[merges]\nlocal_confidence = 0.0": "'merges.local_confidence' must be in (0, 1)",
     "[merges]\nloop_log_odds = -0.5": "'merges.loop_log_odds' must be in [0, 1000]",
     "[merges]\nsearch_sigmas = 0.0": "'merges.search_sigmas' must be in (0, 1000]",
-    "[merges]\nmax_pairs = 5": "merges.max_pairs must be >= merges.max_partners",
+    "[merges]\nmax_pairs = 0": "'merges.max_pairs' must be in [1, 100000], got 0",
     "[merges]\nmax_check_nodes = 0": "'merges.max_check_nodes' must be in [1, 1e7], got 0",
     "[landmarks]\nanchor_sigma_m = 0.0": "'landmarks.anchor_sigma_m' must be in (0, 1e9]",
     "[noise]\nmin_scale = 0.0": "'noise.min_scale' must be in (0, 1]",

@@ -164,8 +164,7 @@ class MergeFinder:
         """(source, target) pairs that may be one landmark, by cheap tests only: each source's
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
-        marginal over them all must stay cheap, also after a long drift) and `max_pairs`
-        pairs (the searches' arithmetic grows with them: `pairs_to_merge`). `widest`: the
+        marginal over them all must stay cheap, also after a long drift). `widest`: the
         largest drift scale a loop is tested at, relative to the map's covariance. A source's
         partners are looked for only when its turn comes, so a keyframe that started thousands
         of landmarks costs the budget's worth of searches, not thousands."""
@@ -181,7 +180,7 @@ class MergeFinder:
         for a in sorted(sources, key=lambda j: -context.last_seen.get(j, -1)):
             mine = {(min(a, b), max(a, b)) for b in search.partners(a)} - pairs
             more = {j for pair in mine for j in pair} - involved
-            if len(involved) + len(more) > c.max_landmarks or len(pairs) + len(mine) > c.max_pairs:
+            if len(involved) + len(more) > c.max_landmarks:
                 break
             pairs |= mine
             involved |= more
@@ -262,10 +261,11 @@ class MergeFinder:
         gates = np.where(
             closes, assoc.chi2_gate(DIM, c.confidence), assoc.chi2_gate(DIM, c.local_confidence)
         )
-        kept = [
-            int(p)
-            for p in np.flatnonzero(assoc.mahalanobis_squared_batch(offsets, blocks) <= gates)
-        ]
+        d2 = assoc.mahalanobis_squared_batch(offsets, blocks)
+        passed = np.flatnonzero(d2 <= gates)
+        # The nearest max_pairs at most: the searches' arithmetic grows with the square and
+        # the cube of the pairs (`pairs_to_merge`).
+        kept = sorted(int(p) for p in passed[np.argsort(d2[passed], kind="stable")[: c.max_pairs]])
         pairs = [candidates[p] for p in kept]
         differences = offsets[kept]
         loop = [bool(closes[p]) for p in kept]

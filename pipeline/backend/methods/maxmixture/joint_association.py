@@ -120,7 +120,12 @@ class KeyframeProblem:
             J = np.zeros((det.dim, self.covariance.shape[0]))
             J[:, :6] = det.pose_jacobians[k]
             J[:, start : start + width] = det.landmark_jacobians[k]
-            rows = self._rows[i, k] = (J, J @ self.covariance)
+            # J's two blocks times their rows of Sigma: O(d n), where J @ Sigma is O(d n^2)
+            J_sigma = (
+                det.pose_jacobians[k] @ self.covariance[:6]
+                + det.landmark_jacobians[k] @ self.covariance[start : start + width]
+            )
+            rows = self._rows[i, k] = (J, J_sigma)
         return rows
 
 
@@ -286,13 +291,19 @@ def indistinguishable(problem: KeyframeProblem, i: int, k: int, other: int) -> b
     are likely one landmark mapped twice, which a merge will join; a choice between them is
     no ambiguity."""
     det = problem.detections[i]
-    n = problem.covariance.shape[0]  # a group's cut joint, bounded (`_group_problem`)
-    J = np.zeros((det.dim, n))
-    for option, sign in ((k, 1.0), (other, -1.0)):
-        slot = det.slots[option]
-        start, width = problem.block_offsets[slot], problem.block_dims[slot]
-        J[:, start : start + width] += sign * det.landmark_jacobians[option]
-    covariance = J @ problem.covariance @ J.T + det.covariance
+    # J has two blocks, +H_k and -H_other: J Sigma J^T from their blocks of Sigma alone
+    blocks = [
+        (
+            sign * det.landmark_jacobians[option],
+            problem.block_offsets[det.slots[option]],
+            problem.block_dims[det.slots[option]],
+        )
+        for option, sign in ((k, 1.0), (other, -1.0))
+    ]
+    covariance = det.covariance.copy()
+    for H_a, a, width_a in blocks:
+        for H_b, b, width_b in blocks:
+            covariance += H_a @ problem.covariance[a : a + width_a, b : b + width_b] @ H_b.T
     difference = det.residuals[k] - det.residuals[other]
     d2 = float(difference @ np.linalg.solve(covariance, difference))
     return d2 <= chi2_gate(det.dim, problem.gate_confidence)

@@ -1,11 +1,13 @@
 """Crowded keyframes, for measuring what a keyframe's number of detections costs: a drive round
 a square past point landmarks, whose last keyframe holds `--detections` detections
-(`pipeline/log/limits.py`: MAX_DETECTIONS_PER_POSE, 1,000, at most), its own and clutter
-scattered about the landmarks it sees, each within reach of their candidates. The keyframe is
+(`pipeline/log/limits.py`: MAX_DETECTIONS_PER_POSE, 1,000, at most): its own and clutter,
+either crowded about the landmarks it sees (boxes on the cars in view, each within reach of
+their candidates) or, with `--spread`, false detections spread over the view. The keyframe is
 the log's last and a merge check's (every 5th): a replay's time is that of the keyframes
 before it (a few seconds) and its own.
 
     python -m data_tools.crowded_log --detections 1000 --out CROWDED.mcap
+    python -m data_tools.crowded_log --detections 1000 --spread --out SPREAD.mcap
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ DETECTION_SIGMAS = np.array([0.01, 0.01, 0.1])  # bearing, elevation, range
 SIDE_M = 20.0
 MAX_RANGE_M = 15.0
 CLUTTER_SPREAD_M = 1.0  # clutter lies about this far from a landmark in view
+VIEW_HALF_ANGLE = np.pi / 3  # spread clutter: within this bearing either side, ahead
 
 
 def yaw_pose(x: float, y: float, yaw: float) -> np.ndarray:
@@ -95,25 +98,41 @@ def keyframe_detections(
     classes: np.ndarray,
     count: int,
     rng: np.random.Generator,
+    spread: bool = False,
 ) -> tuple[Detection, ...]:
-    """The landmarks in view, and clutter about them (each near one, of its class) until the
-    keyframe holds `count` detections (0: no clutter)."""
+    """The landmarks in view, and clutter until the keyframe holds `count` detections (0: no
+    clutter): each about a landmark in view, of its class; or, `spread`, anywhere in the view
+    (1-15 m ahead, within `VIEW_HALF_ANGLE` either side), of any class."""
     seen = in_view(pose, landmarks)
     own = [detection(pose, landmarks[j], int(classes[j]), int(j), rng) for j in seen]
     clutter = []
     for _ in range(max(0, count - len(own))):
-        j = int(rng.choice(seen))
-        point = landmarks[j] + rng.normal(size=3) * CLUTTER_SPREAD_M * [1.0, 1.0, 0.2]
-        clutter.append(detection(pose, point, int(classes[j]), -1, rng))
+        if spread:
+            distance = rng.uniform(1.0, MAX_RANGE_M)
+            bearing = rng.uniform(-VIEW_HALF_ANGLE, VIEW_HALF_ANGLE)
+            local = [distance * np.cos(bearing), distance * np.sin(bearing), rng.uniform(-0.5, 0.5)]
+            point = pose[:3, :3] @ np.array(local) + pose[:3, 3]
+            class_id = int(rng.integers(classes.max() + 1))
+        else:
+            j = int(rng.choice(seen))
+            point = landmarks[j] + rng.normal(size=3) * CLUTTER_SPREAD_M * [1.0, 1.0, 0.2]
+            class_id = int(classes[j])
+        clutter.append(detection(pose, point, class_id, -1, rng))
     return tuple(own + clutter)
 
 
 def write_crowded_log(
-    path: Path, detections: int, crowded_pose: int = 45, classes: int = 2, seed: int = 0
+    path: Path,
+    detections: int,
+    crowded_pose: int = 45,
+    classes: int = 2,
+    seed: int = 0,
+    spread: bool = False,
 ) -> Path:
     """Write the log: every keyframe sees the landmarks in view; the last, `crowded_pose`,
     holds `detections` detections (by default one on the square's third side, whose
-    landmarks in view the keyframes before mapped: its detections have candidates)."""
+    landmarks in view the keyframes before mapped: its detections have candidates), its
+    clutter `spread` over the view or crowded about the landmarks."""
     rng = np.random.default_rng(seed)
     poses = square_drive(crowded_pose + 1)
     landmarks = landmarks_about(rng)
@@ -150,7 +169,7 @@ def write_crowded_log(
                 writer.write(Odometry(stamp(i), i - 1, i, *parts(step), odometry_covariance))
             writer.write(GroundTruthPose(stamp(i), i, *parts(pose)))
             count = detections if i == crowded_pose else 0
-            seen = keyframe_detections(pose, landmarks, landmark_classes, count, rng)
+            seen = keyframe_detections(pose, landmarks, landmark_classes, count, rng, spread)
             writer.write(Detections(stamp(i), i, seen))
     return path
 
@@ -161,9 +180,14 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--crowded-pose", type=int, default=45)
     parser.add_argument("--classes", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--spread", action="store_true", help="clutter over the view, not about the landmarks"
+    )
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    write_crowded_log(args.out, args.detections, args.crowded_pose, args.classes, args.seed)
+    write_crowded_log(
+        args.out, args.detections, args.crowded_pose, args.classes, args.seed, args.spread
+    )
 
 
 if __name__ == "__main__":

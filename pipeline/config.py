@@ -95,6 +95,7 @@ class MergeConfig:
     local_detection_noise: bool
     max_partners: Rounds
     max_landmarks: Annotated[int, within(2, 10**5)]
+    max_marginals: Annotated[int, within(1, 10**6)]
     max_pairs: Annotated[int, within(1, 10**5)]
     max_check_nodes: SearchNodes
     drift_scale_weight: Annotated[float, UNIT]

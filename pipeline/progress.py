@@ -59,11 +59,23 @@ class Progress:
         elif self.enabled and self.clock() - self.last_line >= self.interval_s:
             self._line()
 
-    def _line(self) -> None:
+    def beat(self, doing: str) -> None:
+        """A heartbeat from inside one long item (a slow keyframe): what it is `doing`, shown
+        with the counts as a line when `interval_s` has passed since the last (on a terminal,
+        beside the bar), so that a slow item shows progress instead of silence."""
+        if not self.enabled or self.clock() - self.last_line < self.interval_s:
+            return
+        if self.bar is not None:
+            self.last_line = self.clock()
+            self.bar.set_postfix_str(doing)
+        else:
+            self._line(doing)
+
+    def _line(self, doing: str | None = None) -> None:
         now = self.clock()
         self.last_line, self.shown_done = now, self.done
         line = progress_line(self.description, self.done, self.total, self.unit, now - self.started)
-        self.stream.write(line + "\n")
+        self.stream.write(line + (f"; {doing}" if doing else "") + "\n")
         self.stream.flush()
 
     def close(self, completed: bool = True) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +24,7 @@ from pipeline.config import Config
 from pipeline.errors import InputError, SolverError, first_line
 from pipeline.log import DetectionLog, read_log
 from pipeline.log.messages import Detection, Odometry
-from pipeline.progress import track
+from pipeline.progress import Progress
 from pipeline.viz.sink import NullSink, Sink
 
 logger = logging.getLogger(__name__)
@@ -97,21 +97,31 @@ def solver_failures() -> Iterator[None]:
         raise SolverError(f"the back-end failed: {reason}") from exc
 
 
-def new_backend(log: DetectionLog, method: str, config: Config) -> Backend:
-    """The back-end for replaying `log`: its detector's confusion, its plane if it has one."""
+def new_backend(
+    log: DetectionLog, method: str, config: Config, heartbeat: Callable[[str], None] | None = None
+) -> Backend:
+    """The back-end for replaying `log`: its detector's confusion, its plane if it has one;
+    `heartbeat` hears what a keyframe is doing while it runs."""
     confusion = np.asarray(log.metadata.confusion_matrix, dtype=float)
-    return Backend(config, confusion, method, uses_plane(config.prior.planar, log))
+    return Backend(config, confusion, method, uses_plane(config.prior.planar, log), heartbeat)
 
 
 def run_backend(
     log: DetectionLog, method: str, config: Config, sink: Sink, progress: bool
 ) -> Backend:
-    backend = new_backend(log, method, config)
-    steps = track(keyframes(log), log.num_poses, f"replay {method}", "pose", enabled=progress)
-    for odometry, detections in steps:
-        start = time.perf_counter()
-        report = backend.add_keyframe(odometry, detections)
-        sink.keyframe(report, time.perf_counter() - start)
+    shown = Progress(log.num_poses, f"replay {method}", "pose", enabled=progress)
+    # A slow keyframe (a thousand detections) says what it is doing instead of going silent.
+    backend = new_backend(log, method, config, heartbeat=shown.beat)
+    completed = False
+    try:
+        for odometry, detections in keyframes(log):
+            start = time.perf_counter()
+            report = backend.add_keyframe(odometry, detections)
+            sink.keyframe(report, time.perf_counter() - start)
+            shown.update()
+        completed = True
+    finally:
+        shown.close(completed)
     return backend
 
 

@@ -374,3 +374,22 @@ def test_loops_close_where_the_log_understates_its_drift(tmp_path, seed):
         p for c, p in zip(drift["scales"], drift["probabilities"], strict=True) if c > 10
     )
     assert above_ten > 0.5
+
+
+def test_a_keyframe_tells_its_heartbeat_what_it_is_doing(tmp_path, square_scene):
+    log = read_log(write_scene(tmp_path / "beat.mcap", square_scene, seed=0))
+    heard: list[str] = []
+    confusion = np.asarray(log.metadata.confusion_matrix)
+    backend = Backend(load_config(), confusion, "mm-nh", heartbeat=heard.append)
+    for odometry, detections in list(keyframes(log))[:6]:
+        backend.add_keyframe(odometry, detections)
+    count = len(list(keyframes(log))[5][1])
+    at_5 = [line for line in heard if line.startswith("pose 5: ")]
+    assert at_5[:3] == [
+        f"pose 5: scoring {count} detections",
+        f"pose 5: associating {count} detections",
+        "pose 5: updating iSAM2",
+    ]
+    # pose 5 is a merge check's (every 5th): it tells which source it is at
+    assert any(line.startswith("pose 5: merge check, partners of source 1 of ") for line in at_5)
+    assert not any("merge check" in line for line in heard if line.startswith("pose 4: "))

@@ -239,3 +239,35 @@ def test_nothing_seen_or_moved_since_the_last_check_proposes_nothing():
     assert pairs(context, finder) == []  # the check emptied `changed`
     context.changed.add(a)
     assert pairs(context, finder) == [(b, a)]
+
+
+def bounds_computed(context) -> set[int]:
+    return {j for j, lm in context.landmarks.landmarks.items() if lm.covariance_bound is not None}
+
+
+def test_a_check_computes_max_marginals_at_most_and_the_sources_left_wait_for_the_next():
+    # four landmarks of one keyframe beside an old one: each a source paired with it
+    context, finder = finder_context(max_marginals=2)
+    old = landmark_at(context, [0.0, 0.0, 0.0], poses=(LONG_AGO,))
+    crowd = [landmark_at(context, [0.3 * k, 1.0, 0.0], poses=(LATELY,)) for k in range(4)]
+    # the first source's bound and its partner's: the budget; the other three wait, apart
+    assert pairs(context, finder) == [(crowd[0], old)]
+    assert bounds_computed(context) == {old, crowd[0]}
+    assert context.changed == set(crowd[1:])
+    # the next check: the bounds kept cost nothing, two more sources fit
+    assert pairs(context, finder) == [(crowd[0], old), (crowd[1], old), (crowd[2], old)]
+    assert pairs(context, finder) == [(j, old) for j in crowd]
+    assert context.changed == set()
+
+
+def test_within_max_marginals_a_check_pairs_as_without_a_budget():
+    # two old landmarks, and six new from two keyframes: 6 x 2 + 3 x 3 pairs, 8 marginals
+    sources = []
+    for budget in (10**6, 8):
+        context, finder = finder_context(max_marginals=budget)
+        landmark_at(context, [0.0, 0.0, 0.0], poses=(LONG_AGO,))
+        landmark_at(context, [2.0, 0.0, 0.0], poses=(LONG_AGO,))
+        for k in range(6):
+            landmark_at(context, [0.4 * k, 1.0, 0.0], poses=(LATELY - k % 2,))
+        sources.append(pairs(context, finder))
+    assert sources[0] == sources[1] and len(sources[0]) == 21

@@ -74,3 +74,28 @@ def test_no_last_line_after_a_failure():
     except RuntimeError:
         pass
     assert stream.getvalue() == ""
+
+
+def test_a_slow_item_beats_with_what_it_is_doing():
+    stream, clock = io.StringIO(), FakeClock()
+    shown = Progress(46, "replay mm-nh", "pose", stream=stream, interval_s=5, clock=clock)
+    for _ in range(45):  # fast poses: no line
+        shown.update()
+    for step in range(1, 13):  # the last takes 12 s, its steps a second each
+        clock.now += 1.0
+        shown.beat(f"pose 45: step {step}")
+    shown.update()
+    shown.close()
+    assert stream.getvalue().splitlines() == [
+        "replay mm-nh: 45/46 poses (97%), 5 s; pose 45: step 5",
+        "replay mm-nh: 45/46 poses (97%), 10 s; pose 45: step 10",
+        "replay mm-nh: 46/46 poses (100%), 12 s",
+    ]
+
+
+def test_disabled_progress_does_not_beat():
+    stream, clock = io.StringIO(), FakeClock()
+    shown = Progress(2, "quiet", enabled=False, stream=stream, interval_s=0, clock=clock)
+    clock.now += 10
+    shown.beat("working")
+    assert stream.getvalue() == ""

@@ -10,6 +10,7 @@ covariance of all the differences together.
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -30,6 +31,8 @@ from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.methods.base import BackendContext
 from pipeline.backend.noise import DriftScaleBelief
 from pipeline.config import MergeConfig
+
+logger = logging.getLogger(__name__)
 
 DIM = 3  # point landmarks
 # A landmark's detections can split between it and a duplicate only once both hold two or
@@ -87,13 +90,19 @@ def pair_groups(pairs: list[tuple[int, int]], loop: list[bool]) -> list[list[int
 
 class _PartnerSearch:
     """A merge check's cheap search for each source's partners: mapped point landmarks within
-    reach, classes agreeing, within the gate of the two covariance bounds, never seen in the
-    same keyframe; the `max_partners` nearest. Sightings are gathered once a check."""
+    reach, classes agreeing, never seen in the same keyframe, within the gate of the two
+    covariance bounds; the `max_partners` nearest. Sightings are gathered once a check.
 
-    def __init__(self, finder: MergeFinder, gate: float, widest: float):
+    A landmark's bound is an iSAM2 marginal the first time it is asked for (then cached,
+    `covariance_bound`): a check computes at most `marginals` of them. A source whose search
+    would take more than are left is not searched (`partners` says None): it and the sources
+    after it wait for the next check, keeping their landmarks apart meanwhile."""
+
+    def __init__(self, finder: MergeFinder, gate: float, widest: float, marginals: int):
         self.finder = finder
         self.gate = gate
         self.widest = widest
+        self.marginals = marginals  # new marginals the check may still compute
         self._seen_at: dict[int, set[int]] = {}
 
     def seen_at(self, j: int) -> set[int]:
@@ -101,8 +110,22 @@ class _PartnerSearch:
             self._seen_at[j] = self.finder.context.observed_at(j)
         return self._seen_at[j]
 
-    def partners(self, a: int) -> list[int]:
+    def _afford(self, ids: list[int]) -> bool:
+        """Whether the bounds of `ids` are cached or within the marginals left; if so, they
+        are spent."""
+        lms = self.finder.context.landmarks.landmarks
+        new = sum(lms[j].covariance_bound is None for j in ids)
+        if new > self.marginals:
+            return False
+        self.marginals -= new
+        return True
+
+    def partners(self, a: int) -> list[int] | None:
+        """Source `a`'s partners, nearest first; None if finding them takes more marginals
+        than the check has left."""
         c, lms, bound = self.finder.config, self.finder.context.landmarks, self.finder.bound
+        if not self._afford([a]):
+            return None
         spread = float(np.sqrt(2.0 * np.linalg.eigvalsh(bound(a))[-1]))
         position = lms.position(a)
         reach = c.search_sigmas * spread * math.sqrt(self.widest) + self.finder.margin_m
@@ -111,16 +134,21 @@ class _PartnerSearch:
             return []
         classes = np.array([lms.landmarks[b].class_probabilities for b in near])
         agrees = classes @ lms.landmarks[a].class_probabilities >= c.min_class_agreement
-        near = [b for b, agree in zip(near, agrees, strict=True) if agree]
+        # Two landmarks seen in the same keyframe are two landmarks (tested before the bounds:
+        # a crowded keyframe's own landmarks need none).
+        near = [
+            b
+            for b, agree in zip(near, agrees, strict=True)
+            if agree and not self.seen_at(a) & self.seen_at(b)
+        ]
+        if not near:
+            return []
+        if not self._afford(near):
+            return None
         offsets = position - np.array([lms.position(b) for b in near]).reshape(-1, DIM)
         spreads = 2.0 * (bound(a) + np.array([bound(b) for b in near]).reshape(-1, DIM, DIM))
         d2 = assoc.mahalanobis_squared_batch(offsets, spreads)
-        # Two landmarks seen in the same keyframe are two landmarks.
-        found = [
-            (float(distance), b)
-            for b, distance in zip(near, d2, strict=True)
-            if distance <= self.gate and not self.seen_at(a) & self.seen_at(b)
-        ]
+        found = [(float(d), b) for b, d in zip(near, d2, strict=True) if d <= self.gate]
         return [b for _, b in sorted(found)[: c.max_partners]]
 
 
@@ -164,21 +192,34 @@ class MergeFinder:
         """(source, target) pairs that may be one landmark, by cheap tests only: each source's
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
-        marginal over them all must stay cheap, also after a long drift). `widest`: the
-        largest drift scale a loop is tested at, relative to the map's covariance. A source's
-        partners are looked for only when its turn comes, so a keyframe that started thousands
-        of landmarks costs the budget's worth of searches, not thousands."""
+        marginal over them all must stay cheap, also after a long drift) and their search
+        computes at most `max_marginals` new marginals (`_PartnerSearch`; the sources left
+        over are searched at the next check). `widest`: the largest drift scale a loop is
+        tested at, relative to the map's covariance. A source's partners are looked for only
+        when its turn comes, so a keyframe that started thousands of landmarks costs the
+        budget's worth of searches, not thousands."""
         context, c = self.context, self.config
         sources = self.sources(pose_index)
         if not sources:
             return []
         # A loop's partner may be as far as the `widest` drift scale tested puts it.
         gate = assoc.chi2_gate(DIM, max(c.confidence, c.local_confidence)) * widest
-        search = _PartnerSearch(self, gate, widest)
+        search = _PartnerSearch(self, gate, widest, c.max_marginals)
         pairs: set[tuple[int, int]] = set()
         involved: set[int] = set()
-        for a in sorted(sources, key=lambda j: -context.last_seen.get(j, -1)):
-            mine = {(min(a, b), max(a, b)) for b in search.partners(a)} - pairs
+        ordered = sorted(sources, key=lambda j: -context.last_seen.get(j, -1))
+        for turn, a in enumerate(ordered):
+            context.heartbeat(f"merge check, partners of source {turn + 1} of {len(ordered)}")
+            partners = search.partners(a)
+            if partners is None:
+                # The check's marginals are spent: the sources left wait for the next check.
+                context.changed.update(ordered[turn:])
+                logger.debug(
+                    "pose %d: merge check's marginals spent, %d of %d sources searched",
+                    pose_index, turn, len(ordered),
+                )  # fmt: skip
+                break
+            mine = {(min(a, b), max(a, b)) for b in partners} - pairs
             more = {j for pair in mine for j in pair} - involved
             if len(involved) + len(more) > c.max_landmarks:
                 break
@@ -291,7 +332,9 @@ class MergeFinder:
         # One budget for the check's searches: a check never takes unbounded time, however
         # many pairs the map's covariance lets through (`budget.py`).
         budget = SearchBudget(c.max_check_nodes)
-        for group in pair_groups(pairs, loop):
+        groups = pair_groups(pairs, loop)
+        for k, group in enumerate(groups):
+            context.heartbeat(f"merge check, pair group {k + 1} of {len(groups)}")
             chosen = [pairs[p] for p in group]
             rows = np.concatenate([np.arange(kept[p] * DIM, (kept[p] + 1) * DIM) for p in group])
             closes_loop = any(loop[p] for p in group)

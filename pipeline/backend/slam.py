@@ -13,6 +13,7 @@ associations the update moved, merge duplicated landmarks, learn the noise, and 
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -75,14 +76,24 @@ class BackendResult:
 
 
 class Backend:
-    def __init__(self, config: Config, confusion: np.ndarray, method: str, planar: bool = False):
+    def __init__(
+        self,
+        config: Config,
+        confusion: np.ndarray,
+        method: str,
+        planar: bool = False,
+        heartbeat: Callable[[str], None] | None = None,
+    ):
         """`planar`: the log moves in a plane, stated as a prior on every pose's height and tilt
-        (`pipeline/backend/planar.py`, `[prior] planar`)."""
+        (`pipeline/backend/planar.py`, `[prior] planar`). `heartbeat` hears, now and then,
+        what a keyframe is doing (the replay's progress shows it while a keyframe is slow)."""
         self.config = config
         self.planar = planar
         self.solver = Isam2Solver(config.isam2, config.landmarks.use_relative_pose)
         self.landmarks = LandmarkMap(num_classes=confusion.shape[0], cell_size=INDEX_CELL_SIZE_M)
         self.context = BackendContext(self.solver, self.landmarks, confusion, config)
+        if heartbeat is not None:  # told the pose it is at
+            self.context.heartbeat = lambda doing: heartbeat(f"pose {self.num_poses - 1}: {doing}")
         self.method = make_method(method, self.context)
         self.scorer = CandidateScorer(
             self.solver,
@@ -121,14 +132,20 @@ class Backend:
     ) -> KeyframeReport:
         """Predict, score candidates, associate, update iSAM2, settle, merge, learn, report."""
         fallbacks = len(self.solver.fallbacks)
+        beat = self.context.heartbeat
         prediction = self.predict(odometry)
+        beat(f"scoring {len(detections)} detections")
         keyframe = self.score(prediction, detections)
+        beat(f"associating {len(detections)} detections")
         records = self.associate(keyframe)
+        beat("updating iSAM2")
         switched = self.settle(self.solver.update())
         merged = self.merge(prediction)
         if merged:
+            beat(f"updating iSAM2 after {len(merged)} merges")
             switched += self.settle(self.solver.update())
         if self.learn_noise(prediction.pose_index):
+            beat("updating iSAM2 at the noise learnt")
             switched += self.settle(self.solver.update(anew=True))
         return self.report(keyframe, records, switched, merged, fallbacks)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import gtsam
@@ -33,6 +34,10 @@ class Keyframe:
     joint: KeyframeCovariance | None = None
 
 
+def _quiet(doing: str) -> None:
+    """A heartbeat nobody hears."""
+
+
 @dataclass
 class BackendContext:
     """The state the methods read and edit: solver, landmarks, what detections have shown."""
@@ -52,6 +57,9 @@ class BackendContext:
     changed: set[int] = field(init=False, default_factory=set)
     # Where each kind of detection falls: where a landmark not mapped yet could be.
     space: dict[LandmarkKind, MeasurementSpace] = field(init=False)
+    # Told now and then what a keyframe is doing, from inside its long loops (a keyframe of a
+    # thousand detections): the replay's progress shows it.
+    heartbeat: Callable[[str], None] = field(init=False, default_factory=lambda: _quiet)
 
     def __post_init__(self) -> None:
         self.movement = MovementTracker(movement_thresholds(self.config.isam2))

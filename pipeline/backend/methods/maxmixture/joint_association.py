@@ -24,7 +24,7 @@ Pure numpy: the caller gathers residuals, Jacobians and the joint covariance.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -466,6 +466,7 @@ def associate_keyframe(
     max_nodes: int,
     max_detections: int | None = None,
     budget: SearchBudget | None = None,
+    heartbeat: Callable[[str], None] | None = None,
 ) -> KeyframeDecision:
     """The best assignment, and which of its pairings no rival comes close to.
 
@@ -476,7 +477,8 @@ def associate_keyframe(
     detections that have candidates is searched in groups (`detection_groups`), one after
     the other (`_group_problem`), each given the first `max_detections` pairings the groups
     before made, which pin the keyframe's pose: the searches' depth, and each node's
-    arithmetic, stay bounded however many detections the keyframe holds."""
+    arithmetic, stay bounded however many detections the keyframe holds. `heartbeat` hears
+    which group is searched."""
     n = len(problem.detections)
     max_detections = max_detections or n
     groups = detection_groups(problem, max_detections)
@@ -486,7 +488,9 @@ def associate_keyframe(
     used: set[int] = set()
     given: list[tuple[int, int]] = []
     given_stacked = EMPTY
-    for group in groups:
+    for g, group in enumerate(groups):
+        if heartbeat is not None:
+            heartbeat(f"joint association, group {g + 1} of {len(groups)}")
         cut, kept = _group_problem(problem, group, used, given, given_stacked)
         decision = _decide(cut, ambiguity_log_odds, max_nodes, budget)
         finished = finished and decision.finished

@@ -116,7 +116,12 @@ class MaxMixture(MixtureMethod):
                 gate_confidence=a.joint_confidence,
             )
             decision = associate_keyframe(
-                problem, a.ambiguity_log_odds, a.max_search_nodes, a.max_joint_detections, budget
+                problem,
+                a.ambiguity_log_odds,
+                a.max_search_nodes,
+                a.max_joint_detections,
+                budget,
+                self.context.heartbeat,
             )
             chosen = [
                 int(kept[i][k]) if k != NONE and unique else NONE

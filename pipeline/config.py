@@ -134,6 +134,7 @@ class Isam2Config:
     relinearize_skip: Keyframes  # GTSAM takes a C int
     factorization: Literal["CHOLESKY", "QR"]
     batch_iterations: Annotated[int, within(0, 10**5)]
+    max_root_landmarks: Annotated[int, within(1, 10**6)]
 
 
 @dataclass(frozen=True)

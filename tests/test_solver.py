@@ -1,6 +1,7 @@
 """The solver never stops on a valid log: GTSAM's messages in one line, and a graph Cholesky
 refuses solved again in batch, then with QR if Cholesky refuses that too."""
 
+import dataclasses
 from collections.abc import Callable
 
 import gtsam
@@ -469,3 +470,35 @@ def test_the_bent_loop_does_not_hang_on_the_last_bits(tmp_path, method):
     assert (first / "associations.csv").read_text() == (second / "associations.csv").read_text()
     a, b = np.loadtxt(first / "trajectory.tum"), np.loadtxt(second / "trajectory.tum")
     np.testing.assert_allclose(a[:, 1:], b[:, 1:], rtol=0, atol=1e-6)
+
+
+def crowded_keyframe(solver: Isam2Solver, landmarks: int) -> None:
+    """A pose and `landmarks` points seen from it once each, in one update."""
+    solver.add(gtsam.PriorFactorPose3(X(0), gtsam.Pose3(), NOISE))
+    solver.insert(X(0), gtsam.Pose3())
+    seen = gtsam.noiseModel.Isotropic.Sigma(3, 0.1)
+    for j in range(landmarks):
+        point = np.array([5.0 + j % 10, float(j // 10) - 2.0, 0.5])
+        bearing = gtsam.Unit3(point)
+        solver.add(
+            gtsam.BearingRangeFactor3D(X(0), L(j), bearing, float(np.linalg.norm(point)), seen)
+        )
+        solver.insert(L(j), point)
+    solver.update()
+
+
+def test_a_crowded_update_leaves_its_landmarks_out_of_the_root():
+    """30 landmarks seen from one pose in one update: all last, they make one root clique with
+    the pose; over `max_root_landmarks`, only the newest goes last, the others are leaves."""
+    from data_tools.bench_isam2 import bayes_tree_shape
+
+    roots = {}
+    for max_root in (100, 10):
+        config = dataclasses.replace(load_config().isam2, max_root_landmarks=max_root)
+        solver = Isam2Solver(config)
+        crowded_keyframe(solver, 30)
+        roots[max_root] = bayes_tree_shape(solver.isam).root_frontals
+        groups = landmarks_last(graph_of(solver._committed.values()), max_last=max_root)
+        assert groups.size() == (31 if max_root == 100 else 2)  # the pose, and those last
+        assert (groups.at(X(0)), groups.at(L(29))) == (1, 2)
+    assert roots[100] == 31 and roots[10] <= 2

@@ -72,7 +72,9 @@ def fallback_counts(fallbacks: list[SolverFallback]) -> dict[str, int]:
     return {kind: counts[kind] for kind in FALLBACK_KINDS}
 
 
-def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -> gtsam.KeyGroupMap:
+def landmarks_last(
+    graph: gtsam.NonlinearFactorGraph, root: int | None = None, max_last: int | None = None
+) -> gtsam.KeyGroupMap:
     """iSAM2's ordering of an update: the variables of its new factors last (GTSAM's default:
     they stay at the root, where the next update finds them), and among them the landmarks
     after the poses. `root`, given for an update without landmarks (odometry alone), is a
@@ -84,16 +86,26 @@ def landmarks_last(graph: gtsam.NonlinearFactorGraph, root: int | None = None) -
     re-pointing a landmark's detections from fifteen poses was refused, and on another run an
     update holding one odometry step. A landmark's marginal is as wide, but its own
     measurements are centimetres, not millimetres, and the poses before it are then eliminated
-    given it: their pivots are their information relative to it."""
+    given it: their pivots are their information relative to it.
+
+    An update whose new factors hold more than `max_last` landmarks (a crowded keyframe) puts
+    only the newest of them last, and leaves the others to CCOLAMD with the variables it
+    re-eliminates: all last, they would make one dense root clique (a keyframe of 1,000 new
+    landmarks: 1,001 variables, where each later marginal of any of them took 12 s)."""
     keys = list(graph.keyVector())
     if root is not None:
         keys.append(root)
+    landmarks = {key for key in keys if is_landmark_key(key)}
+    last = landmarks if max_last is None or len(landmarks) <= max_last else {max(landmarks)}
     # CCOLAMD takes groups 0 .. n - 1 for n variables (those the update re-eliminates, at
     # least these): with two, the pose goes with the variables not constrained.
     first = 1 if len(keys) >= 3 else 0
     groups = gtsam.KeyGroupMap()
     for key in keys:
-        groups.insert2(key, first + 1 if is_landmark_key(key) else first)
+        if key in last:
+            groups.insert2(key, first + 1)
+        elif key not in landmarks:
+            groups.insert2(key, first)
     return groups
 
 
@@ -227,7 +239,7 @@ class Isam2Solver:
             extra = gtsam.KeyList()
             extra.push_back(root)
             params.extraReelimKeys = extra
-        params.constrainedKeys = landmarks_last(graph, root)
+        params.constrainedKeys = landmarks_last(graph, root, self.config.max_root_landmarks)
         result = self.isam.update(graph, self._values, params)
         for handle, slot in zip(self._pending, result.getNewFactorsIndices(), strict=True):
             self._slots[handle] = slot

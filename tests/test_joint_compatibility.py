@@ -413,3 +413,25 @@ def test_a_large_check_spends_nodes_bounded_by_its_pairs():
     P, sources, seeds = len(ps.pairs), 14, 5
     searches = 1 + len(truth) * 3  # the best set's, and at most 3 rivals a merged pair
     assert budget.spent <= 50 + searches * (1 + seeds) * P * sources
+
+
+def test_a_set_grown_again_from_another_seed_keeps_its_first_order(monkeypatch):
+    """Seeds of one true loop grow the same set, in their own orders, with scores equal but for
+    rounding: the first order stays (the order the merges are made in), whatever the last
+    bits say. Here every growth after the first scores a little more."""
+    import pipeline.backend.joint_compatibility as jc
+
+    ps, truth = drifted_loop(5, 3, 30.0)
+    grown = []
+    real = jc.grown_pairs
+
+    def rounding_up(*args, **kwargs):
+        chosen, score, finished = real(*args, **kwargs)
+        grown.append(chosen)
+        return chosen, score + 1e-12 * len(grown), finished
+
+    monkeypatch.setattr(jc, "grown_pairs", rounding_up)
+    best, _, finished = SeededSearch(ps, 0.95, 5)(ps, 0.95, 50)
+    assert finished and sorted(best) == sorted(truth)
+    assert sum(sorted(g) == sorted(truth) for g in grown) >= 2  # found again from another seed
+    assert best == next(g for g in grown if sorted(g) == sorted(truth))

@@ -506,7 +506,9 @@ class SeededSearch:
             chosen, score, finished = grown_pairs(
                 pair_set, confidence, (p,), forbidden, self.budget
             )
-            if score > best_score:
+            # The same set grown from another seed scores the same but for rounding (the order
+            # of its pairs differs): the first stays, and with it the order its merges take.
+            if score > best_score and set(chosen) != set(best):
                 best, best_score = chosen, score
         return best, best_score, finished
 

@@ -292,8 +292,10 @@ def assert_every_factor_at(backend: Backend, odometry: np.ndarray, bearing: floa
 
 
 # Calibrated on seeds 1-3 of each (three laps of the square, updates every 10 keyframes):
-# yaw sigmas x6 (variance x36) read 20-37, forward x4 (x16) 12-24, bearing x0.3 (x0.09)
-# 0.03-0.09; stated right, nothing moved.
+# yaw sigmas x6 (variance x36) read 33-79, forward x4 (x16) 14-17, bearing x0.3 (x0.09)
+# 0.09-0.17; stated right, nothing moved on seeds 1-2 (seed 3: the roll to 6.0 on 3.2 nats,
+# docs/method.md). Windows read again once a loop closes read an understated odometry high, by
+# up to 1 / (1 - lambda) where the rest of the loop (understated too) decides a share lambda.
 @pytest.mark.slow
 @pytest.mark.e2e
 @pytest.mark.parametrize("seed", [1, 2])
@@ -320,7 +322,7 @@ def test_a_direction_stated_wrong_is_found_alone_and_every_factor_reweighted(
     if moved is None:
         assert backend.noise.moves == []
     else:
-        assert true / 2 <= learnt[moved] <= true * 2
+        assert true / 2 <= learnt[moved] <= true * 2.5
     assert all(v == 1.0 for name, v in learnt.items() if name != moved)
     assert_every_factor_at(backend, np.array(scales.odometry), learnt["bearing"])
     metrics = compute_metrics(read_log(log), backend.result(), "mm-nh", 0.0)
@@ -366,11 +368,11 @@ def test_loops_close_where_the_log_understates_its_drift(tmp_path, seed):
     stated_per_tag = metrics["stated"]["association_one_to_one"]["landmarks_per_true"]
     assert drift_per_tag <= 1.08 and stated_per_tag >= 1.15
     assert stated_per_tag - drift_per_tag >= 0.15
-    # metrics.json says what the loops said: the drift is many times the log's (the prior
-    # puts a quarter on scales above 10)
+    # metrics.json says what the loops said: the drift is many times the log's, in the yaw's
+    # scale learnt from the windows across them (the loops' own belief restarts from its prior
+    # when the scales move: it says how far the drift exceeds the scales in use)
     drift = metrics["drift"]["loop_drift"]
     assert drift["loops"] > 0 and sum(drift["probabilities"]) == pytest.approx(1.0, abs=1e-3)
-    above_ten = sum(
-        p for c, p in zip(drift["scales"], drift["probabilities"], strict=True) if c > 10
-    )
-    assert above_ten > 0.5
+    learnt = metrics["drift"]["noise_scales"]["odometry"]
+    assert learnt["yaw"] > 10.0
+    assert all(learnt[axis] == 1.0 for axis in ("roll", "pitch", "forward", "lateral", "vertical"))

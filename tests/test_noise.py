@@ -1,6 +1,8 @@
 """The noise scales learnt per direction: the likelihood and its pieces against independent
 computations, and recovery of misstatements, one direction at a time, both ways."""
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 import pytest
@@ -29,7 +31,9 @@ from pipeline.backend.noise.drift import (
     transports,
     window_discrepancy,
 )
+from pipeline.backend.noise.learner import NoiseLearner
 from pipeline.backend.noise.scales import ODOMETRY_AXES
+from pipeline.config import load_config
 
 YAW = ODOMETRY_AXES.index("yaw")
 LATERAL = ODOMETRY_AXES.index("lateral")
@@ -225,7 +229,8 @@ def test_a_window_whose_estimate_follows_the_odometry_shows_no_discrepancy():
     poses = [gtsam.Pose3()]
     for step in steps:
         poses.append(poses[-1] * step)
-    o = windows.observe(poses, random_covariance(12, rng, 0.005), np.ones(6))
+    windows.open(4, [4])
+    o = windows.observe(0, poses, random_covariance(12, rng, 0.005), np.ones(6))
     np.testing.assert_allclose(o.y, 0.0, atol=1e-9)
 
 
@@ -285,6 +290,23 @@ def test_one_direction_misstated_is_found_and_moved_alone(direction, true, decid
     assert moved.tolist() == [direction]
     assert reading.scales[direction] == pytest.approx(true, rel=0.35)
     assert reading.evidence[direction] >= 3.0
+
+
+def test_two_directions_misstated_move_one_a_reading_the_clearest_first():
+    """Yaw 40 and lateral 10 times the statement: the first reading moves the direction with
+    the most evidence beyond what it needs, the next one (the same windows, read at the first
+    move's scales) the other."""
+    rng, Q0, R = window_case(9)
+    true = np.array([1, 1, 40.0, 1, 10.0, 1])
+    likelihood = likelihood_of(fused_windows(Q0, R, np.ones(6), true, 300, rng))
+    first = likelihood.reading(np.ones(6), (0.01, 1e4), 3.0, 2.0, drop=2)
+    assert first.evidence[YAW] >= 3.0 and first.evidence[LATERAL] >= 3.0  # both could move
+    clearest = int(np.argmax(first.evidence))
+    other = LATERAL if clearest == YAW else YAW
+    assert np.flatnonzero(first.scales != 1.0).tolist() == [clearest]
+    second = likelihood.reading(first.scales, (0.01, 1e4), 3.0, 2.0, drop=2)
+    assert np.flatnonzero(second.scales != first.scales).tolist() == [other]
+    np.testing.assert_allclose(second.scales[[YAW, LATERAL]], [40.0, 10.0], rtol=0.35)
 
 
 def test_a_move_down_takes_twice_the_evidence_of_a_move_up():
@@ -398,6 +420,96 @@ def test_windows_are_due_every_their_own_length_once_their_steps_are_known():
     assert alone.due(6, 2) == [2]
 
 
+def test_only_the_latest_windows_are_kept_and_the_steps_they_read():
+    rng = np.random.default_rng(21)
+    steps = random_steps(10, rng)
+    drift = DriftWindows(length=2, kept=3)
+    for step in steps:
+        drift.add_step(step, 1e-4 * np.eye(6))
+    for end in (2, 4, 6, 8, 10):
+        drift.open(end, [2])
+    assert list(drift.windows) == [(4, 6), (6, 8), (8, 10)]
+    # the window from keyframe 4 reads steps 4 and 5 (the earlier ones let go)
+    poses = [gtsam.Pose3(), steps[4], steps[4] * steps[5]]
+    np.testing.assert_allclose(
+        drift.observe(4, poses, np.zeros((12, 12)), np.ones(6)).y, 0.0, atol=1e-9
+    )
+    shifted = [gtsam.Pose3(), steps[3], steps[3] * steps[4]]
+    assert np.abs(drift.observe(4, shifted, np.zeros((12, 12)), np.ones(6)).y).max() > 1.0
+
+
+class LoopClosingEstimate:
+    """An estimate that follows the odometry (and knows nothing more of it) until `closed`,
+    then knows the true path exactly: a loop closed after the windows ended."""
+
+    def __init__(self, odometry, truth, stated):
+        self.odometry, self.truth, self.stated = odometry, truth, stated
+        self.closed = False
+
+    def pose(self, key):
+        return (self.truth if self.closed else self.odometry)[gtsam.Symbol(key).index()]
+
+    def joint_covariance(self, keys):
+        a, b = (gtsam.Symbol(k).index() for k in keys)
+        if self.closed:
+            return np.zeros((12, 12))
+        joint = np.zeros((12, 12))  # the end's covariance the odometry's composed one
+        joint[6:, 6:] = (b - a) * self.stated
+        joint[:6, :6] = 1e-12 * np.eye(6)
+        return joint
+
+
+def test_windows_are_read_again_when_a_loop_closes_after_they_ended():
+    """Eight windows end while the estimate follows the odometry: nothing to learn. A loop then
+    closes (the estimate knows the true path): the same windows, read again, teach the yaw.
+    After the move they are closed: kept as last read, whatever the estimate does next."""
+    rng = np.random.default_rng(22)
+    stated = np.diag([1e-6, 1e-6, 1e-6, 1e-4, 1e-4, 1e-4])
+    truth_steps = [
+        gtsam.Pose3(gtsam.Rot3.Yaw(rng.normal(0, 0.1)), rng.normal([1.0, 0, 0], [0.2, 0.2, 0.01]))
+        for _ in range(100)
+    ]
+    noisy = [
+        step
+        * gtsam.Pose3.Expmap(
+            rng.multivariate_normal(np.zeros(6), scaled_covariance(stated, [1, 1, 100, 1, 1, 1]))
+        )
+        for step in truth_steps
+    ]
+
+    def path(steps):
+        poses = [gtsam.Pose3()]
+        for step in steps:
+            poses.append(poses[-1] * step)
+        return poses
+
+    estimate = LoopClosingEstimate(path(noisy), path(truth_steps), stated)
+    config = replace(
+        load_config().noise,
+        update_every=10,
+        drift_window=10,
+        long_drift_window=0,
+        min_drift_windows=3,
+    )
+    learner = NoiseLearner(config, enabled=True)
+    for k, step in enumerate(noisy, start=1):
+        learner.add_step(step, stated)
+        estimate.closed = k == 80  # after the move, the estimate follows the odometry again
+        change = learner.learn(k, estimate, lambda poses: [])
+        assert bool(change.odometry) == (k == 80), k
+        if k == 80:
+            assert not learner.drift.windows
+            as_read = [o.y for o in learner.windows.observations]
+            assert np.abs(as_read[0]).max() > 1.0  # the first window, read again
+    # the eight closed windows as read at the move, and two new ones
+    kept = learner.windows.observations
+    assert len(kept) == 10
+    for y, o in zip(as_read, kept[:8], strict=True):
+        np.testing.assert_array_equal(o.y, y)
+    assert learner.moves[0].after[YAW] == pytest.approx(100.0, rel=0.6)
+    assert [s for i, s in enumerate(learner.moves[0].after) if i != YAW] == [1.0] * 5
+
+
 @pytest.mark.parametrize("true_yaw", [1.0, 50.0])
 def test_windows_of_noisy_steps_against_the_true_path_find_the_yaw_scale(true_yaw):
     """Steps drawn with yaw true_yaw times the stated variance, the estimate knowing the
@@ -408,7 +520,7 @@ def test_windows_of_noisy_steps_against_the_true_path_find_the_yaw_scale(true_ya
     true = np.array([1, 1, true_yaw, 1, 1, 1])
     drift = DriftWindows(length=20)
     likelihood = ScaleLikelihood(ODOMETRY_AXES, kept=1000)
-    for _ in range(200):
+    for window in range(200):
         truth = random_steps(20, rng)
         for step in truth:
             noise = rng.multivariate_normal(np.zeros(6), scaled_covariance(stated, true))
@@ -416,7 +528,8 @@ def test_windows_of_noisy_steps_against_the_true_path_find_the_yaw_scale(true_ya
         poses = [gtsam.Pose3()]
         for step in truth:
             poses.append(poses[-1] * step)
-        likelihood.add(drift.observe(poses, np.zeros((12, 12)), np.ones(6)))
+        drift.open(20 * (window + 1), [20])
+        likelihood.add(drift.observe(20 * window, poses, np.zeros((12, 12)), np.ones(6)))
     reading = likelihood.reading(np.ones(6), (0.01, 1e4), 3.0, 2.0, drop=2)
     if true_yaw == 1.0:
         assert reading.scales is None

@@ -103,18 +103,29 @@ def drift_observation(
 
 
 class DriftWindows:
-    """The odometry's latest steps, and the windows due: of `length` keyframes every
-    `every` keyframes, and of `long_length` (if any) every as many. A slow odometry bias drifts
-    more over a long window than white noise of the same step sigma, and the loops that must
-    close are long: long windows read it where short ones read the white part."""
+    """The odometry's steps and the windows read from them: of `length` keyframes every
+    `every` keyframes, and of `long_length` (if any) every as many, the latest `kept` of them.
+    A slow odometry bias drifts more over a long window than white noise of the same step
+    sigma, and the loops that must close are long: long windows read it where short ones read
+    the white part.
 
-    def __init__(self, length: int, long_length: int = 0):
+    The open windows are read anew at every reading, at the estimate of then: a loop closed
+    after a window ended corrects the poses inside it, and its discrepancy then says what the
+    loop says of the odometry. Read once, at its end, a window inside a loop not yet closed
+    follows the odometry and says nothing; the loops' evidence would reach only the windows
+    ending just after each closure (indoors, with few loops, the yaw's scale was learnt a
+    thousand keyframes late). `close` ends the reading of the open windows (the learner closes
+    them when the scales move)."""
+
+    def __init__(self, length: int, long_length: int = 0, kept: int = 40):
         self.length = length
         self.long_length = long_length
-        size = max(length, long_length)
-        self._steps: deque[gtsam.Pose3] = deque(maxlen=size)
-        self._adjoints: deque[np.ndarray] = deque(maxlen=size)
-        self._stated: deque[np.ndarray] = deque(maxlen=size)
+        self.windows: deque[tuple[int, int]] = deque(maxlen=kept)  # (first, last) keyframes
+        # step k goes from keyframe k to k + 1; those before the oldest window's are dropped
+        self._first_step = 0
+        self._steps: list[gtsam.Pose3] = []
+        self._adjoints: list[np.ndarray] = []
+        self._stated: list[np.ndarray] = []
 
     def add_step(self, step: gtsam.Pose3, stated: np.ndarray) -> None:
         self._steps.append(step)
@@ -126,18 +137,34 @@ class DriftWindows:
         keyframes: each length whose steps are known, every `every` keyframes or, when longer,
         every its own length, so that no two windows of one length overlap."""
         lengths = [self.length] + ([self.long_length] if self.long_length else [])
-        return [n for n in lengths if len(self._steps) >= n and pose_index % max(n, every) == 0]
+        known = self._first_step + len(self._steps)
+        return [n for n in lengths if known >= n and pose_index % max(n, every) == 0]
+
+    def open(self, pose_index: int, lengths: list[int]) -> None:
+        """Windows of `lengths` ending at keyframe `pose_index` join the open ones; the steps
+        no open window reads, nor the longest that may open next, are let go."""
+        self.windows.extend((pose_index - n, pose_index) for n in lengths)
+        longest = max(self.length, self.long_length)
+        firsts = [first for first, _ in self.windows]
+        drop = min([*firsts, pose_index - longest]) - self._first_step
+        if drop > 0:
+            del self._steps[:drop], self._adjoints[:drop], self._stated[:drop]
+            self._first_step += drop
+
+    def close(self) -> None:
+        """No open window is read again (the next to open let their steps go)."""
+        self.windows.clear()
 
     def observe(
-        self, poses: list[gtsam.Pose3], joint: np.ndarray, used: np.ndarray
+        self, first: int, poses: list[gtsam.Pose3], joint: np.ndarray, used: np.ndarray
     ) -> ScaleObservation:
-        """The window of the last len(poses) - 1 steps: the estimate's `poses` of its
-        keyframes, the (12, 12) joint covariance of its ends, the odometry at `used`."""
-        length = len(poses) - 1
-        steps = list(self._steps)[-length:]
+        """The window from keyframe `first` over len(poses) - 1 steps: the estimate's `poses`
+        of its keyframes, the (12, 12) joint covariance of its ends, the odometry at `used`."""
+        window = slice(first - self._first_step, first - self._first_step + len(poses) - 1)
+        steps = self._steps[window]
         estimated = [a.between(b) for a, b in itertools.pairwise(poses)]
-        T = transports(np.array(list(self._adjoints)[-length:]))
-        stated = np.array(list(self._stated)[-length:])
+        T = transports(np.array(self._adjoints[window]))
+        stated = np.array(self._stated[window])
         relative = poses[0].between(poses[-1])
         discrepancy = window_discrepancy(T, steps, estimated)
         return drift_observation(discrepancy, T, stated, relative, joint, used)

@@ -160,24 +160,38 @@ def test_max_mixture_switches_component_when_the_estimate_moves(tmp_path, select
     assert record_at(ml, KIDNAP_POSE, 0).landmark_id == landmark_of_truth(ml)[0]
 
 
-@pytest.mark.e2e
-def test_class_posterior_follows_the_reports(tmp_path):
+def class_reports_scene() -> Scene:
+    """Two landmarks of classes 0 and 1 seen from every pose of a quarter lap, each report
+    drawn through a confusion matrix that confuses them 3 times in 10: a minority of the
+    reports (`misreports`) name the other class."""
     confusion = np.array([[0.7, 0.3], [0.3, 0.7]])
     poses = square_loop(8.0, 1.0, laps=0.25)
     landmarks = np.array([[4.0, 3.0, 0.0], [6.0, -3.0, 0.0]])
-    misreports = {(0, 0), (1, 0), (2, 1)}  # the minority of reports
+    misreports = {(0, 0), (1, 0), (2, 1)}
     scene = Scene(poses, landmarks, np.array([0, 1]), confusion=confusion, misreports=misreports)
     scene.sightings = [(i, j) for i in range(len(poses)) for j in range(2)]
-    log = write_scene(tmp_path / "classes.mcap", scene, odom_noise=0.0, meas_noise=0.0)
-    backend = run_backend(log, "known")
-    reports = {0: [0] * len(poses), 1: [1] * len(poses)}
-    for i, j in misreports:
+    return scene
+
+
+def assert_class_posteriors_follow_the_reports(backend: Backend, scene: Scene) -> None:
+    """Every landmark of `scene`'s log (`class_reports_scene`), surely associated, holds the
+    class posterior its reports give, P(c) ~ prod P(report | c), and its true class wins."""
+    assert scene.confusion is not None
+    reports = {j: [int(c)] * len(scene.poses) for j, c in enumerate(scene.classes)}
+    for i, j in scene.misreports:
         reports[j][i] = 1 - reports[j][i]
+    assert len(backend.landmarks.landmarks) == len(scene.landmarks)
     for j, landmark in backend.landmarks.landmarks.items():
-        # a sure association multiplies likelihoods: P(c) ~ prod P(report | c)
-        expected = np.array([np.prod(confusion[c, reports[j]]) for c in range(2)])
+        expected = np.array([np.prod(scene.confusion[c, reports[j]]) for c in range(2)])
         np.testing.assert_allclose(landmark.class_probabilities, expected / expected.sum())
         assert landmark.map_class == j
+
+
+@pytest.mark.e2e
+def test_class_posterior_follows_the_reports(tmp_path):
+    scene = class_reports_scene()
+    log = write_scene(tmp_path / "classes.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    assert_class_posteriors_follow_the_reports(run_backend(log, "known"), scene)
 
 
 def test_known_takes_a_report_its_confusion_matrix_calls_impossible(tmp_path):

@@ -306,10 +306,9 @@ def assert_every_factor_at(backend: Backend, odometry: np.ndarray, bearing: floa
 
 
 # Calibrated on seeds 1-3 of each (three laps of the square, updates every 10 keyframes):
-# yaw sigmas x6 (variance x36) read 33-79, forward x4 (x16) 14-17, bearing x0.3 (x0.09)
-# 0.09-0.17; stated right, nothing moved on seeds 1-2 (seed 3: the roll to 6.0 on 3.2 nats,
-# docs/method.md). Windows read again once a loop closes read an understated odometry high, by
-# up to 1 / (1 - lambda) where the rest of the loop (understated too) decides a share lambda.
+# yaw sigmas x6 (variance x36) read 15-28, forward x4 (x16) 8.4-9.2, bearing x0.3 (x0.09)
+# 0.09-0.17: short of an odometry's truth where landmarks decide part of a window (drift.py).
+# Stated right, nothing moved on seeds 1-2; on seed 3 the roll, to 3.0 (docs/method.md).
 @pytest.mark.slow
 @pytest.mark.e2e
 @pytest.mark.parametrize("seed", [1, 2])
@@ -336,7 +335,7 @@ def test_a_direction_stated_wrong_is_found_alone_and_every_factor_reweighted(
     if moved is None:
         assert backend.noise.moves == []
     else:
-        assert true / 2 <= learnt[moved] <= true * 2.5
+        assert true / 2 <= learnt[moved] <= true * 2
     assert all(v == 1.0 for name, v in learnt.items() if name != moved)
     assert_every_factor_at(backend, np.array(scales.odometry), learnt["bearing"])
     metrics = compute_metrics(read_log(log), backend.result(), "mm-nh", 0.0)

@@ -141,8 +141,9 @@ def test_relative_covariance_matches_numerical_jacobians():
 def test_a_window_observation_by_hand():
     # one step, stated Q = 2 I, the estimate's relative covariance C = diag(1, 1, 0, 0, 0, 0):
     # whitened, C is diag(0.5, 0.5, 0, ...): the rest of the graph decides half of the first
-    # two directions and all of the others. Under scales s the discrepancy's variance is
-    # (1 - l)^2 s + l - l^2 (+ settling) along each: 0.25 s + 0.25, and s along the others.
+    # two directions and all of the others. Under scales s (the rest erring as the odometry
+    # does) the discrepancy's variance is (1 - l)^2 s + (l - l^2) s (+ settling) along each:
+    # 0.5 s, and s along the others.
     step = gtsam.Pose3(gtsam.Rot3(), np.array([1.0, 0.0, 0.0]))
     joint = np.zeros((12, 12))
     joint[6:, 6:] = np.diag([1.0, 1.0, 0, 0, 0, 0])
@@ -157,7 +158,7 @@ def test_a_window_observation_by_hand():
     s = np.array([3.0, 1.0, 1.0, 1.0, 5.0, 1.0])
     V = o.rest + np.einsum("p,pab->ab", pair_coefficients(s, o.pairs), o.basis)
     share = np.array([0.5, 0.5, 0, 0, 0, 0])  # whitened C's eigenvalues
-    expected = (1 - share) ** 2 * s + share - share**2 + SETTLING_VARIANCE
+    expected = (1 - share) * s + SETTLING_VARIANCE
     np.testing.assert_allclose(np.diag(V), expected)
 
 
@@ -173,9 +174,21 @@ def test_a_window_the_estimate_knows_less_of_than_the_odometry_says_nothing():
     np.testing.assert_allclose(o.rest, SETTLING_VARIANCE * np.eye(6), atol=1e-12)
 
 
+def rest_erring_like_the_odometry(Qu, R, Qt):
+    """The true covariance of the rest of the graph's measurement of a window (stated R) where
+    it is the rest of a loop's odometry, erring as the window's does (stated Qu, true Qt):
+    whitened by Qu, R_w^1/2 Qt_w R_w^1/2."""
+    W = np.linalg.inv(np.linalg.cholesky(Qu))
+    lam, U = np.linalg.eigh(W @ R @ W.T)
+    root = (U * np.sqrt(lam)) @ U.T
+    Winv = np.linalg.inv(W)
+    return Winv @ root @ (W @ Qt @ W.T) @ root @ Winv.T
+
+
 def test_a_window_observation_is_the_fused_estimate_s_discrepancy():
-    """An odometry (true covariance Q(s)) and the rest of the graph (R) fused as the back-end
-    would with the odometry stated at `used`: the discrepancies' covariance is the model's."""
+    """An odometry (true covariance Q(s)) and the rest of the graph (R, the rest of a loop,
+    erring as the odometry does) fused as the back-end would with the odometry stated at
+    `used`: the discrepancies' covariance is the model's."""
     rng = np.random.default_rng(5)
     Q0, R = random_covariance(6, rng), 0.5 * random_covariance(6, rng)
     used, true = np.array([1, 1, 4.0, 1, 1, 1]), np.array([1, 1, 30.0, 1, 0.3, 1])
@@ -183,7 +196,8 @@ def test_a_window_observation_is_the_fused_estimate_s_discrepancy():
     C = np.linalg.inv(np.linalg.inv(Qu) + np.linalg.inv(R))
     n = 20000
     z_o = rng.multivariate_normal(np.zeros(6), Qt, size=n, method="cholesky")
-    z_r = rng.multivariate_normal(np.zeros(6), R, size=n, method="cholesky")
+    R_true = rest_erring_like_the_odometry(Qu, R, Qt)
+    z_r = rng.multivariate_normal(np.zeros(6), R_true, size=n, method="cholesky")
     fused = (C @ (np.linalg.solve(Qu, z_o.T) + np.linalg.solve(R, z_r.T))).T
     joint = np.zeros((12, 12))
     joint[6:, 6:] = C
@@ -237,16 +251,19 @@ def test_a_window_whose_estimate_follows_the_odometry_shows_no_discrepancy():
 # --- the likelihood, its fit and its evidence --------------------------------------------
 
 
-def fused_windows(Q0, R, used, true, n, rng):
-    """n window observations of an odometry Q0 at `true` scales, fused at `used`."""
+def fused_windows(Q0, R, used, true, n, rng, loop=True):
+    """n window observations of an odometry Q0 at `true` scales, fused at `used` with the rest
+    of the graph (stated R): the rest of a loop erring as the odometry does, or (`loop`
+    False) landmarks that err as stated."""
     Qu, Qt = scaled_covariance(Q0, used), scaled_covariance(Q0, true)
     C = np.linalg.inv(np.linalg.inv(Qu) + np.linalg.inv(R))
+    R_true = rest_erring_like_the_odometry(Qu, R, Qt) if loop else R
     joint = np.zeros((12, 12))
     joint[6:, 6:] = C
     out = []
     for _ in range(n):
         z_o = rng.multivariate_normal(np.zeros(6), Qt, method="cholesky")
-        z_r = rng.multivariate_normal(np.zeros(6), R, method="cholesky")
+        z_r = rng.multivariate_normal(np.zeros(6), R_true, method="cholesky")
         fused = C @ (np.linalg.solve(Qu, z_o) + np.linalg.solve(R, z_r))
         relative = gtsam.Pose3.Expmap(-(z_o - fused))  # U^-1 T, with U the identity
         out.append(
@@ -307,6 +324,25 @@ def test_two_directions_misstated_move_one_a_reading_the_clearest_first():
     second = likelihood.reading(first.scales, (0.01, 1e4), 3.0, 2.0, drop=2)
     assert np.flatnonzero(second.scales != first.scales).tolist() == [other]
     np.testing.assert_allclose(second.scales[[YAW, LATERAL]], [40.0, 10.0], rtol=0.35)
+
+
+@pytest.mark.parametrize("true", [40.0, 0.1])
+def test_where_landmarks_decide_the_rest_the_scale_read_lies_toward_the_statement(true):
+    """The model takes the rest of a window's graph to err as the odometry does (a loop's other
+    windows). Where it is landmarks that err as stated, the scale read lies between the
+    statement and the truth (a move never overshoots), at the truth where the landmarks
+    decide nearly all of the window."""
+    scales = np.ones(6)
+    scales[YAW] = true
+    read = {}
+    for decided in (1.0, 0.001):
+        rng, Q0, R = window_case(11, decided)
+        windows = fused_windows(Q0, R, np.ones(6), scales, 300, rng, loop=False)
+        read[decided] = likelihood_of(windows).reading(np.ones(6), (0.01, 1e4), 3.0, 2.0, 2).fit
+    low, high = sorted([1.0, true])
+    assert low / 1.2 <= read[1.0][YAW] <= high * 1.2
+    assert abs(np.log(read[1.0][YAW] / true)) > 0.5  # half decided: well short of the truth
+    assert read[0.001][YAW] == pytest.approx(true, rel=0.35)
 
 
 def test_a_move_down_takes_twice_the_evidence_of_a_move_up():

@@ -249,6 +249,9 @@ class ScaleLikelihood:
         # and the forward 1 -> 1259, truth 3.9, on 3.4 nats); the next reading asks again.
         moving = np.arange(n) == np.argmax(evidence - needed)
         after = self.fit(now, moving | ~tested, bounds)
+        if np.all(np.abs(after - now)[moving] < np.log(deadband)):
+            # alone, the direction stays near its scale (the joint fit's move was the others')
+            return Reading(None, np.exp(best), evidence)
         return Reading(np.exp(after), np.exp(best), evidence)
 
     def _worth_fitting(

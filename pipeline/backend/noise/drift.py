@@ -8,13 +8,21 @@ the window's odometry and the rest of the graph as two measurements of T, the od
 the covariance Q_u it was given (the stated one at the scales in use) and the rest's with R:
 the estimate fuses them, C^-1 = Q_u^-1 + R^-1, and delta = G (z_odometry - z_rest) with
 G = I - C Q_u^-1. If the odometry's true covariance is Q(s) (the stated one at scales s, per
-direction), delta ~ N(0, G Q(s) G^T + C - C Q_u^-1 C). In the frame that whitens Q_u, with
-C = U diag(lambda) U^T: G = U diag(1 - lambda) U^T, and the part that does not depend on s is
-U diag(lambda - lambda^2) U^T. A direction the landmarks decide nothing of (lambda = 1) says
-nothing of s; one across a loop closure (lambda near 0) says much. Q(s) is linear in the pair
-coefficients sqrt(s_i s_j) (`components.py`), so a window is one `ScaleObservation` of the
-odometry's six directions, valid whatever scales are in use later: the windows of every scale
-are read together.
+direction), delta ~ N(0, G Q(s) G^T + G R_true G^T), and G R G^T = C - C Q_u^-1 C. What the
+rest is decides R_true: landmarks err as stated (R_true = R), but the rest of a loop is the
+loop's other odometry, erring as this window's does. Read again once a loop closes, most
+windows are decided by the rest of their loop, and taking R_true = R there read an understated
+odometry high by up to 1 / (1 - lambda): the yaw at 1937 where the truth is 82 (a
+street grid, noise 4), and the wide gates then closed wrong loops. So the rest is taken to err
+as the odometry does: in the frame that whitens Q_u, with C = U diag(lambda) U^T,
+G = U diag(1 - lambda) U^T and G R_true G^T = M Q_w(s) M^T, M = U diag(sqrt(lambda -
+lambda^2)) U^T, Q_w(s) the true covariance whitened: exact for a loop, and where landmarks
+decide the rest, a scale read between the statement and the truth (1 + (1 - lambda)(s - 1)
+for one direction): a move never overshoots. A direction the rest decides nothing of
+(lambda = 1) says nothing of s; one across a loop closure (lambda near 0) says much. Q(s) is
+linear in the pair coefficients sqrt(s_i s_j) (`components.py`), so a window is one
+`ScaleObservation` of the odometry's six directions, valid whatever scales are in use later:
+the windows of every scale are read together.
 
 iSAM2's estimate is relinearised only where it moved: along directions the landmarks leave to
 the odometry, a window's discrepancy is about SETTLING_VARIANCE (whitened), not zero.
@@ -96,9 +104,14 @@ def drift_observation(
     lam, U = np.linalg.eigh(0.5 * (C + C.T))
     lam = np.clip(lam, 0.0, 1.0)  # the estimate knows at most what the odometry says
     GW = ((U * (1.0 - lam)) @ U.T) @ W
-    rest = (U * (lam - lam**2)) @ U.T + SETTLING_VARIANCE * np.eye(6)
+    # the rest's part, C - C Q_u^-1 C = M M^T, scaled with the odometry (see the docstring)
+    MW = ((U * np.sqrt(lam - lam**2)) @ U.T) @ W
     return ScaleObservation.made(
-        delta, 0.5 * (rest + rest.T), GW @ basis @ GW.T, pairs, np.asarray(used, dtype=float)
+        delta,
+        SETTLING_VARIANCE * np.eye(6),
+        GW @ basis @ GW.T + MW @ basis @ MW.T,
+        pairs,
+        np.asarray(used, dtype=float),
     )
 
 

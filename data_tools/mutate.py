@@ -1,5 +1,5 @@
 """`make mutate`: mutation testing of the modules whose bugs a user would not see, by a table of
-named mutations (`data_tools/mutations.py`): each a plausible bug, put into a copy of the
+named mutations (`data_tools/mutations.toml`): each a plausible bug, put into a copy of the
 project one at a time, and the module's own tests run against it. A mutation the tests notice
 (a failure, an error, a crash, a hang past the time limit) is killed; one they do not notice
 survived. Each module's score is killed / all; the table marks the survivors known to change

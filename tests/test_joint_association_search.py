@@ -222,6 +222,7 @@ def test_a_rival_keeps_its_required_pairing_and_is_not_its_detection_s_null():
     paired = -1.5 * np.log(2 * np.pi * 2 * 0.05**2) + np.log(0.9)
     assert score(problem, [0]) == pytest.approx(paired, rel=1e-6)
     assert 0.0 < paired - 4.0 < AMBIGUITY
-    assert enumerated_best(problem, (0, 1)) == (None, -np.inf)
+    rival, rival_score = enumerated_best(problem, (0, 1))
+    assert rival is None and np.isneginf(rival_score)  # no assignment pairs it with 1
     decision = associate_keyframe(problem, AMBIGUITY, 10_000)
     assert decision.assignment == [0] and decision.unique == [True]

@@ -72,7 +72,7 @@ def test_by_the_weights_the_null_wins_where_it_outweighs_the_best(null_weight, a
 
 def test_without_the_null_hypothesis_the_best_weight_is_taken():
     _, mm, a, b = method("weights", null_hypothesis=False, null_weight=0.5)
-    assert mm.null_weight == 0.0 and mm.name == "mm"
+    assert mm.null_weight == pytest.approx(0.0, abs=1e-12) and mm.name == "mm"
     m = measurement(1, detection_of(POSE, A, class_id=0))
     record = mm.associate(m, candidates([a, b], [0.4, 0.6], [1.0, 0.0]), keyframe_at(1, POSE))
     np.testing.assert_allclose(record.weights, [0.4, 0.6])

@@ -130,6 +130,22 @@ def test_a_pairing_is_unique_where_no_rival_comes_within_the_ambiguity(seed):
         assert decision.unique[i] == all(r < best_score - AMBIGUITY for r in rivals)
 
 
+def options(residuals, null_log_density, slots=None, seniority=None, pose_jacobian=H_POSE):
+    """One detection's candidates: their residuals (m), landmark Jacobian I, prior 0.9 each."""
+    residuals = np.asarray(residuals, dtype=float)
+    k = len(residuals)
+    return DetectionOptions(
+        residuals=residuals,
+        pose_jacobians=np.broadcast_to(pose_jacobian, (k, 3, 6)).copy(),
+        landmark_jacobians=np.broadcast_to(np.eye(3), (k, 3, 3)).copy(),
+        slots=np.arange(k) if slots is None else np.asarray(slots),
+        log_prior=np.full(k, np.log(0.9)),
+        covariance=GAMMA,
+        null_log_density=null_log_density,
+        seniority=None if seniority is None else np.asarray(seniority, dtype=float),
+    )
+
+
 def two_estimates(rho: float, difference: float) -> KeyframeProblem:
     """One detection, two candidate landmarks each known to 1 m, correlated by `rho` (one
     landmark mapped twice shares the drift: rho near 1), their predictions `difference` apart;
@@ -137,15 +153,7 @@ def two_estimates(rho: float, difference: float) -> KeyframeProblem:
     covariance = np.zeros((12, 12))
     covariance[6:9, 6:9] = covariance[9:12, 9:12] = np.eye(3)
     covariance[6:9, 9:12] = covariance[9:12, 6:9] = rho * np.eye(3)
-    det = DetectionOptions(
-        residuals=np.array([[0.0, 0.0, 0.0], [difference, 0.0, 0.0]]),
-        pose_jacobians=np.zeros((2, 3, 6)),
-        landmark_jacobians=np.broadcast_to(np.eye(3), (2, 3, 3)).copy(),
-        slots=np.array([0, 1]),
-        log_prior=np.zeros(2),
-        covariance=GAMMA,
-        null_log_density=-5.0,
-    )
+    det = options([[0.0, 0.0, 0.0], [difference, 0.0, 0.0]], -5.0, pose_jacobian=np.zeros((3, 6)))
     return KeyframeProblem([det], covariance, np.array([6, 9]), np.array([3, 3]), CONFIDENCE)
 
 
@@ -164,26 +172,8 @@ def test_an_established_landmark_another_detection_holds_does_not_take_a_pairing
     landmark 0: one landmark takes one detection a keyframe."""
     covariance = np.eye(12) * 0.01**2
     covariance[:6, :6] = np.eye(6) * 1e-6
-    det0 = DetectionOptions(
-        residuals=np.array([[0.0, 0.01, 0.0], [0.0, 0.0, 0.0]]),
-        pose_jacobians=np.broadcast_to(H_POSE, (2, 3, 6)).copy(),
-        landmark_jacobians=np.broadcast_to(np.eye(3), (2, 3, 3)).copy(),
-        slots=np.array([0, 1]),
-        log_prior=np.log(np.array([0.9, 0.9])),
-        covariance=GAMMA,
-        null_log_density=-10.0,
-        seniority=np.array([1.0, 30.0]),
-    )
-    det1 = DetectionOptions(
-        residuals=np.array([[0.0, 0.0, 0.01]]),
-        pose_jacobians=H_POSE[None].copy(),
-        landmark_jacobians=np.eye(3)[None].copy(),
-        slots=np.array([1]),
-        log_prior=np.log(np.array([0.9])),
-        covariance=GAMMA,
-        null_log_density=-10.0,
-        seniority=np.array([30.0]),
-    )
+    det0 = options([[0.0, 0.01, 0.0], [0.0, 0.0, 0.0]], -10.0, seniority=[1.0, 30.0])
+    det1 = options([[0.0, 0.0, 0.01]], -10.0, slots=[1], seniority=[30.0])
     problem = KeyframeProblem(
         [det0, det1], covariance, np.array([6, 9]), np.array([3, 3]), CONFIDENCE
     )
@@ -209,15 +199,7 @@ def test_a_rival_keeps_its_required_pairing_and_is_not_its_detection_s_null():
     adds only 1.1 nats over the null, yet no rival pairs the detection otherwise: unique."""
     covariance = np.eye(12) * 0.05**2
     covariance[:6, :6] = np.eye(6) * 1e-12
-    det = DetectionOptions(
-        residuals=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]),
-        pose_jacobians=np.broadcast_to(H_POSE, (2, 3, 6)).copy(),
-        landmark_jacobians=np.broadcast_to(np.eye(3), (2, 3, 3)).copy(),
-        slots=np.array([0, 1]),
-        log_prior=np.log(np.array([0.9, 0.9])),
-        covariance=GAMMA,
-        null_log_density=4.0,
-    )
+    det = options([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]], 4.0)
     problem = KeyframeProblem([det], covariance, np.array([6, 9]), np.array([3, 3]), CONFIDENCE)
     paired = -1.5 * np.log(2 * np.pi * 2 * 0.05**2) + np.log(0.9)
     assert score(problem, [0]) == pytest.approx(paired, rel=1e-6)

@@ -1,6 +1,9 @@
-"""`check_intrinsics`'s principal point rules on wide images (KITTI's 1242 x 375): a point on
-or past the image's edge is outside it, and how far from the centre it may lie is a quarter of
-the image's width across, a quarter of its height up and down."""
+"""`check_intrinsics` on wide images (KITTI's 1242 x 375): a principal point on or past the
+image's edge is outside it, and how far from the centre it may lie is a quarter of the image's
+width across, a quarter of its height up and down; numbers that are not finite, a focal length
+or baseline that is not positive, refused by name; and the log's calibration message as read."""
+
+import dataclasses
 
 import pytest
 
@@ -37,3 +40,30 @@ def test_the_principal_point_may_lie_a_quarter_of_the_image_from_its_centre(dx, 
     else:
         with pytest.raises(InputError, match="far from the centre"):
             check_intrinsics(k, "calib.txt")
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("fx", float("inf"), "fx is inf"),
+        ("cy", float("nan"), "cy is nan"),
+        ("baseline", float("inf"), "baseline is inf"),
+        ("baseline", 0.0, "must be positive"),
+        ("baseline", -0.54, "must be positive"),
+        ("fy", -700.0, "must be positive"),
+    ],
+)
+def test_numbers_a_calibration_cannot_hold_are_refused_by_name(field, value, message):
+    k = dataclasses.replace(intrinsics(WIDTH / 2, HEIGHT / 2), **{field: value})
+    with pytest.raises(InputError, match=message):
+        check_intrinsics(k, "calib.txt")
+
+
+def test_the_log_s_calibration_holds_each_number_in_its_place():
+    k = StereoIntrinsics(WIDTH, HEIGHT, 701.0, 699.0, 610.0, 180.0, 0.54)
+    message = k.calibration_message(123)
+    assert (message.stamp_ns, message.width, message.height) == (123, WIDTH, HEIGHT)
+    assert (message.fx, message.fy, message.cx, message.cy) == pytest.approx(
+        (701.0, 699.0, 610.0, 180.0)
+    )
+    assert message.baseline == pytest.approx(0.54)

@@ -2,7 +2,7 @@
 test_log_integrity.py's), each checked: a summary CRC, a chunk's CRC or a chunk's size that
 does not match what the bytes hold is refused in one line naming it. The data section's CRC is
 zeroed where a chunk is changed (a log written without it), so that the chunk's own check is
-the one that speaks."""
+the one that speaks. And the decompression budget, which the fuzz cases (slow) exercise too."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 
 from pipeline.cli import main
 from pipeline.log import read_log
-from tests.fuzz_logs import _data_end, _records_of
+from tests.fuzz_logs import _chunk, _data_end, _file_of_chunks, _records_of, _zstd_of_zeros
 from tests.synthetic import small_square_log
 
 CHUNK, FOOTER = 0x06, 0x02
@@ -85,3 +85,14 @@ def test_the_unchanged_log_without_its_data_crc_reads_the_same(tmp_path, small_l
     path = tmp_path / "same.mcap"
     path.write_bytes(data)
     assert read_log(path) == read_log(small_log)
+
+
+def test_chunks_each_under_the_cap_that_inflate_past_the_budget_are_a_bomb(tmp_path):
+    """Twenty chunks of 9 MiB each (under the 128 MiB a chunk may hold) in a file of a few
+    kilobytes: 180 MiB is past the budget (16 MiB plus 100 times the file), refused as a bomb
+    before the rest is inflated."""
+    mib = 2**20
+    one_record = _zstd_of_zeros(9 * mib, struct.pack("<BQ", 0x80, 9 * mib - 9))
+    data = _file_of_chunks([_chunk("zstd", one_record, 9 * mib)] * 20)
+    assert 16 * mib + 100 * len(data) < 180 * mib
+    assert "decompression bomb" in refusal(tmp_path, data, "bomb.mcap")

@@ -10,7 +10,7 @@ no behaviour (`equivalent`) with the reason, and the run lists every survivor.
 `--mutation` runs only the mutations of those names (say, a run's survivors once a test was
 written for them); the scores printed then count only those.
 
-Not in CI: a run of every module takes tens of minutes on two cores (each mutation runs its
+Not in CI: a run of every module takes hours on two cores (each mutation runs its
 module's tests, `-x`, the slow ones left out unless the table asks for them).
 """
 

@@ -160,14 +160,15 @@ def test_contrasts_are_taken_at_the_detections_scales_in_use(contrasts_seen):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_each_window_is_read_from_its_ends_poses_and_joint(monkeypatch, seed):
-    """At keyframe 8 both windows are due (4 and 8): each the same observation as a second
-    DriftWindows makes from the window's own poses, the joint of its two ends and the odometry's
-    scales in use; the poses are read once, from the long window's first."""
+    """At keyframe 8 every open window is read again (the short one of keyframe 4, and both due
+    now: 4 and 8): each the same observation as a second DriftWindows makes from the window's
+    own poses, the joint of its two ends and the odometry's scales in use; the poses are read
+    once, from the earliest window's first."""
     steps = odometry(seed, 8)
     learner = NoiseLearner(noise_config(), enabled=True)
     learner.scales = NoiseScales((2.0, 1.0, 3.0, 1.0, 0.5, 1.0), (1.0, 1.0, 1.0))
-    added = []
-    monkeypatch.setattr(learner.windows, "add", added.append)
+    read = []
+    monkeypatch.setattr(learner.windows, "replace", read.append)
     reader = Estimate()
     for k, step in enumerate(steps, start=1):
         learner.add_step(step, STATED)
@@ -177,14 +178,16 @@ def test_each_window_is_read_from_its_ends_poses_and_joint(monkeypatch, seed):
     reader.joints_asked.clear()
     learner.learn(8, reader, lambda _: [])
     assert reader.poses_asked == [X(k) for k in range(0, 9)]
-    assert reader.joints_asked == [[X(4), X(8)], [X(0), X(8)]]
+    windows = [(0, 4), (4, 8), (0, 8)]
+    assert reader.joints_asked == [[X(first), X(last)] for first, last in windows]
     by_hand = DriftWindows(4, 8)
     for step in steps:
         by_hand.add_step(step, STATED)
     used = np.array([2.0, 1.0, 3.0, 1.0, 0.5, 1.0])
-    for observation, first in zip(added[-2:], (4, 0), strict=True):
-        poses = [true_pose(k) for k in range(first, 9)]
-        expected = by_hand.observe(poses, joint_of(first, 8), used)
+    assert len(read[-1]) == len(windows)
+    for observation, (first, last) in zip(read[-1], windows, strict=True):
+        poses = [true_pose(k) for k in range(first, last + 1)]
+        expected = by_hand.observe(first, poses, joint_of(first, last), used)
         np.testing.assert_allclose(observation.y, expected.y, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(observation.rest, expected.rest, rtol=1e-9, atol=1e-12)
         np.testing.assert_allclose(observation.basis, expected.basis, rtol=1e-9, atol=1e-12)

@@ -226,14 +226,19 @@ def test_an_estimator_is_read_once_it_has_enough_observations_and_only_when_new(
     assert len(readings.asked) == 2
 
 
+def learn_with(monkeypatch, learner, odometry_after, measurement_after, seed, pose_index):
+    """The learner's next reading, its estimators standing in to return these scales."""
+    monkeypatch.setattr(learner.windows, "reading", Readings(odometry_after))
+    monkeypatch.setattr(learner.contrasts, "reading", Readings(measurement_after))
+    for step in odometry(seed, 4):
+        learner.add_step(step, STATED)
+    return learner.learn(pose_index, Estimate(), Held())
+
+
 def test_a_move_changes_its_own_scales_and_is_recorded(monkeypatch, contrasts_seen):
     learner = NoiseLearner(noise_config(drift_window=4, long_drift_window=0), enabled=True)
     odometry_after = (1.0, 1.0, 4.0, 1.0, 1.0, 1.0)
-    monkeypatch.setattr(learner.windows, "reading", Readings(odometry_after))
-    monkeypatch.setattr(learner.contrasts, "reading", Readings(None))
-    for step in odometry(3, 4):
-        learner.add_step(step, STATED)
-    change = learner.learn(4, Estimate(), Held())
+    change = learn_with(monkeypatch, learner, odometry_after, None, 3, 4)
     assert change.odometry and not change.measurement
     assert learner.scales.odometry == pytest.approx(odometry_after)
     assert learner.scales.measurement == pytest.approx((1.0, 1.0, 1.0))
@@ -243,11 +248,7 @@ def test_a_move_changes_its_own_scales_and_is_recorded(monkeypatch, contrasts_se
     assert move.evidence == pytest.approx((7.0,) * 6)
 
     measurement_after = (2.0, 1.0, 0.25)
-    monkeypatch.setattr(learner.windows, "reading", Readings(None))
-    monkeypatch.setattr(learner.contrasts, "reading", Readings(measurement_after))
-    for step in odometry(4, 4):
-        learner.add_step(step, STATED)
-    change = learner.learn(8, Estimate(), Held())
+    change = learn_with(monkeypatch, learner, None, measurement_after, 4, 8)
     assert change.measurement and not change.odometry
     assert learner.scales.odometry == pytest.approx(odometry_after)
     assert learner.scales.measurement == pytest.approx(measurement_after)

@@ -61,9 +61,11 @@ def copy_project(target: Path) -> None:
         shutil.copy2(source, destination)
 
 
-def run_tests(copy: Path, tests: tuple[str, ...], timeout_s: float | None) -> tuple[int, float]:
+def run_tests(
+    copy: Path, tests: tuple[str, ...], timeout_s: float | None
+) -> tuple[int, float, str]:
     """pytest over `tests` in `copy` (its `pipeline` imported, not the installed one): its exit
-    status (-1 past the time limit) and the seconds taken."""
+    status (-1 past the time limit), the seconds taken and the end of what it printed."""
     env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")
     command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
     start = time.monotonic()
@@ -72,10 +74,11 @@ def run_tests(copy: Path, tests: tuple[str, ...], timeout_s: float | None) -> tu
             command, cwd=copy, env=env, capture_output=True, timeout=timeout_s, check=False
         )
     except subprocess.TimeoutExpired:
-        return -1, time.monotonic() - start
+        return -1, time.monotonic() - start, ""
     if done.returncode == EXIT_NO_TESTS:
         raise SystemExit(f"mutate: no tests collected by {' '.join(tests)}")
-    return done.returncode, time.monotonic() - start
+    tail = "\n".join(done.stdout.decode(errors="replace").splitlines()[-15:])
+    return done.returncode, time.monotonic() - start, tail
 
 
 def check_table(mutations: list[Mutation]) -> None:
@@ -93,9 +96,11 @@ def mutate_module(copy: Path, name: str, only: set[str] | None = None) -> list[O
     """Each mutation of module `name` (those named in `only`, if given) in `copy`, one at a
     time, against the module's tests."""
     module = MODULES[name]
-    status, baseline = run_tests(copy, module.tests, None)
+    status, baseline, output = run_tests(copy, module.tests, None)
     if status != 0:
-        raise SystemExit(f"mutate: {name}: its tests fail before any mutation ({module.tests})")
+        raise SystemExit(
+            f"mutate: {name}: its tests fail before any mutation ({module.tests}):\n{output}"
+        )
     timeout = max(MIN_TIMEOUT_S, TIMEOUT_FACTOR * baseline)
     outcomes = []
     for m in module.mutations:
@@ -105,7 +110,7 @@ def mutate_module(copy: Path, name: str, only: set[str] | None = None) -> list[O
         original = path.read_text()
         path.write_text(original.replace(m.pattern, m.replacement, 1))
         try:
-            status, seconds = run_tests(copy, module.tests, timeout)
+            status, seconds, _ = run_tests(copy, module.tests, timeout)
         finally:
             path.write_text(original)
         how = "timeout" if status == -1 else "failed" if status != 0 else "survived"

@@ -65,9 +65,9 @@ bench: $(STAMP)
 docs: $(STAMP)
 	$(BIN)/python -m data_tools.rerun_docs
 
-# Mutation testing of the modules whose bugs users would not see (data_tools/mutations.py):
+# Mutation testing of the modules whose bugs users would not see (data_tools/mutations.toml):
 # each named bug put into a copy, one at a time, its module's tests run; the score per module
-# and the survivors printed. Not in CI: tens of minutes. MODULE=log/codec runs one module.
+# and the survivors printed. Not in CI: hours on two cores. MODULE=log/codec runs one module.
 mutate: models
 	nice -n 10 $(BIN)/python -m data_tools.mutate $(if $(MODULE),--module $(MODULE))
 

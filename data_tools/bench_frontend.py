@@ -30,38 +30,35 @@ sharpening 0.25), and its detections on real images without tags.
 
 from __future__ import annotations
 
-import os
+import data_tools.one_core  # noqa: F401 - first: one thread under numpy and OpenCV
 
-# One core: no thread pools under numpy or OpenCV (set before they load).
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
+# isort: split
+import argparse
+import json
+import logging
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
 
-import argparse  # noqa: E402
-import json  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable, Sequence  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
+import cv2
+import numpy as np
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from pipeline.datasets.camera import StereoIntrinsics  # noqa: E402
-from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body  # noqa: E402
-from pipeline.datasets.stereo import read_grey  # noqa: E402
-from pipeline.frontend import geometry as g  # noqa: E402
-from pipeline.frontend.apriltags import (  # noqa: E402
+from pipeline.datasets.camera import StereoIntrinsics
+from pipeline.datasets.kitti import KittiSequence, camera_poses_to_body
+from pipeline.datasets.stereo import read_grey
+from pipeline.frontend import geometry as g
+from pipeline.frontend.apriltags import (
     LIBAPRILTAG_PIXEL_OFFSET,
     AprilTagDetector,
     LibapriltagDetector,
     tag_detection,
 )
-from pipeline.frontend.config import FrontendConfig, load_frontend_config  # noqa: E402
-from pipeline.frontend.ground_truth import LANDMARKS_FILE, read_landmarks  # noqa: E402
-from pipeline.frontend.stereo_vo import KeyframeStep, StereoOdometry  # noqa: E402
+from pipeline.frontend.config import FrontendConfig, load_frontend_config
+from pipeline.frontend.ground_truth import LANDMARKS_FILE, read_landmarks
+from pipeline.frontend.stereo_vo import KeyframeStep, StereoOdometry
 
 log = logging.getLogger(__name__)
 

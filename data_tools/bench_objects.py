@@ -23,32 +23,29 @@ Each speed figure is the best of `--repeat` runs. No assertions: this prints fig
 
 from __future__ import annotations
 
+import data_tools.one_core  # noqa: F401 - first: one thread under numpy and OpenCV
+
+# isort: split
+import argparse
 import dataclasses
-import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 
-# One core: no thread pools under numpy or OpenCV (set before they load).
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_name, "1")
+import cv2
+import numpy as np
 
-import argparse  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from dataclasses import dataclass  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
-
-from pipeline.datasets.camera import StereoIntrinsics  # noqa: E402
-from pipeline.datasets.kitti import (  # noqa: E402
+from pipeline.datasets.camera import StereoIntrinsics
+from pipeline.datasets.kitti import (
     read_calibration,
     read_calibration_rows,
 )
-from pipeline.datasets.stereo import read_image, to_grey  # noqa: E402
-from pipeline.frontend import objects as ob  # noqa: E402
-from pipeline.frontend import stereo_range as sr  # noqa: E402
-from pipeline.frontend.config import (  # noqa: E402
+from pipeline.datasets.stereo import read_image, to_grey
+from pipeline.frontend import objects as ob
+from pipeline.frontend import stereo_range as sr
+from pipeline.frontend.config import (
     ObjectDetectorConfig,
     StereoRangeConfig,
     load_frontend_config,

@@ -1,13 +1,16 @@
 """`make mutate`: mutation testing of the modules whose bugs a user would not see, by a table of
-named mutations (`data_tools/mutations.py`): each a plausible bug, put into a copy of the
+named mutations (`data_tools/mutations.toml`): each a plausible bug, put into a copy of the
 project one at a time, and the module's own tests run against it. A mutation the tests notice
 (a failure, an error, a crash, a hang past the time limit) is killed; one they do not notice
 survived. Each module's score is killed / all; the table marks the survivors known to change
 no behaviour (`equivalent`) with the reason, and the run lists every survivor.
 
-    python -m data_tools.mutate [--module NAME ...] [--list]
+    python -m data_tools.mutate [--module NAME ...] [--mutation NAME ...] [--list]
 
-Not in CI: a run of every module takes tens of minutes on two cores (each mutation runs its
+`--mutation` runs only the mutations of those names (say, a run's survivors once a test was
+written for them); the scores printed then count only those.
+
+Not in CI: a run of every module takes hours on two cores (each mutation runs its
 module's tests, `-x`, the slow ones left out unless the table asks for them).
 """
 
@@ -58,9 +61,11 @@ def copy_project(target: Path) -> None:
         shutil.copy2(source, destination)
 
 
-def run_tests(copy: Path, tests: tuple[str, ...], timeout_s: float | None) -> tuple[int, float]:
+def run_tests(
+    copy: Path, tests: tuple[str, ...], timeout_s: float | None
+) -> tuple[int, float, str]:
     """pytest over `tests` in `copy` (its `pipeline` imported, not the installed one): its exit
-    status (-1 past the time limit) and the seconds taken."""
+    status (-1 past the time limit), the seconds taken and the end of what it printed."""
     env = dict(os.environ, PYTHONPATH=str(copy), PYTHONDONTWRITEBYTECODE="1")
     command = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
     start = time.monotonic()
@@ -69,10 +74,11 @@ def run_tests(copy: Path, tests: tuple[str, ...], timeout_s: float | None) -> tu
             command, cwd=copy, env=env, capture_output=True, timeout=timeout_s, check=False
         )
     except subprocess.TimeoutExpired:
-        return -1, time.monotonic() - start
+        return -1, time.monotonic() - start, ""
     if done.returncode == EXIT_NO_TESTS:
         raise SystemExit(f"mutate: no tests collected by {' '.join(tests)}")
-    return done.returncode, time.monotonic() - start
+    tail = "\n".join(done.stdout.decode(errors="replace").splitlines()[-15:])
+    return done.returncode, time.monotonic() - start, tail
 
 
 def check_table(mutations: list[Mutation]) -> None:
@@ -86,19 +92,25 @@ def check_table(mutations: list[Mutation]) -> None:
             )
 
 
-def mutate_module(copy: Path, name: str) -> list[Outcome]:
+def mutate_module(copy: Path, name: str, only: set[str] | None = None) -> list[Outcome]:
+    """Each mutation of module `name` (those named in `only`, if given) in `copy`, one at a
+    time, against the module's tests."""
     module = MODULES[name]
-    status, baseline = run_tests(copy, module.tests, None)
+    status, baseline, output = run_tests(copy, module.tests, None)
     if status != 0:
-        raise SystemExit(f"mutate: {name}: its tests fail before any mutation ({module.tests})")
+        raise SystemExit(
+            f"mutate: {name}: its tests fail before any mutation ({module.tests}):\n{output}"
+        )
     timeout = max(MIN_TIMEOUT_S, TIMEOUT_FACTOR * baseline)
     outcomes = []
     for m in module.mutations:
+        if only is not None and m.name not in only:
+            continue
         path = copy / m.path
         original = path.read_text()
         path.write_text(original.replace(m.pattern, m.replacement, 1))
         try:
-            status, seconds = run_tests(copy, module.tests, timeout)
+            status, seconds, _ = run_tests(copy, module.tests, timeout)
         finally:
             path.write_text(original)
         how = "timeout" if status == -1 else "failed" if status != 0 else "survived"
@@ -129,10 +141,21 @@ def report(results: dict[str, list[Outcome]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m data_tools.mutate", description=__doc__)
     parser.add_argument("--module", action="append", choices=sorted(MODULES), default=None)
+    parser.add_argument(
+        "--mutation", action="append", default=None, help="only the mutations of these names"
+    )
     parser.add_argument("--list", action="store_true", help="list the mutations and stop")
     args = parser.parse_args(argv)
     names = args.module or list(MODULES)
-    mutations = [m for name in names for m in MODULES[name].mutations]
+    only = None if args.mutation is None else set(args.mutation)
+    mutations = [
+        m for name in names for m in MODULES[name].mutations if only is None or m.name in only
+    ]
+    if only is not None:
+        unknown = only - {m.name for m in mutations}
+        if unknown:
+            parser.error(f"no mutation named {sorted(unknown)[0]!r} in {', '.join(names)}")
+        names = [name for name in names if any(m.module == name for m in mutations)]
     check_table(mutations)
     if args.list:
         for m in mutations:
@@ -144,8 +167,9 @@ def main(argv: list[str] | None = None) -> int:
         copy_project(copy)
         for name in names:
             module = MODULES[name]
-            print(f"{name}: {len(module.mutations)} mutations, tests {' '.join(module.tests)}")
-            results[name] = mutate_module(copy, name)
+            count = sum(m.module == name for m in mutations)
+            print(f"{name}: {count} mutations, tests {' '.join(module.tests)}")
+            results[name] = mutate_module(copy, name, only)
     print(report(results))
     return 0
 

@@ -412,6 +412,16 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_log_out(parser: argparse.ArgumentParser) -> None:
+    """`--out LOG.mcap`: the log the command writes."""
+    parser.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+
+
+def _add_config_option(parser: argparse.ArgumentParser, defaults: str) -> None:
+    """`--config FILE`: a TOML file whose keys are put over the `defaults`."""
+    parser.add_argument("--config", type=Path, metavar="FILE", help=f"TOML over {defaults}")
+
+
 def _add_viz_options(parser: argparse.ArgumentParser) -> None:
     viz = parser.add_mutually_exclusive_group()
     viz.add_argument("--rrd", type=Path, metavar="FILE", help="save a Rerun recording to FILE")
@@ -469,7 +479,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     # a metavar, so that argparse does not read the choices (import the scenarios) to build it
     simulate.add_argument("scenario", choices=SCENARIOS, metavar="SCENARIO", help="%(choices)s")
-    simulate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    _add_log_out(simulate)
     simulate.add_argument(
         "--seed", type=number_in(int, 0), default=0, help="draws all noise, >= 0 (default 0)"
     )
@@ -490,14 +500,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--true-covariance", action="store_true",
         help="write the odometry covariance of the noise drawn, not the calibrated model's",
     )  # fmt: skip
-    simulate.add_argument("--config", type=Path, metavar="FILE", help="TOML over the scenario's")
+    _add_config_option(simulate, "the scenario's")
     _add_stated_options(simulate)
 
     restate = _subcommand(
         commands, "restate", "a log with its noise stated wrong on purpose", _cmd_restate
     )
     restate.add_argument("log", type=Path, metavar="LOG.mcap")
-    restate.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
+    _add_log_out(restate)
     _add_stated_options(restate)
 
     frontend = _subcommand(commands, "frontend", "stereo images to a detection log", _cmd_frontend)
@@ -505,10 +515,8 @@ def build_parser() -> argparse.ArgumentParser:
         "sequence", type=Path, metavar="SEQUENCE",
         help="a folder (KITTI, EuRoC or plain layout) or a ROS 2 bag (folder or file)",
     )  # fmt: skip
-    frontend.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
-    frontend.add_argument(
-        "--config", type=Path, metavar="FILE", help="TOML over configs/frontend.toml"
-    )
+    _add_log_out(frontend)
+    _add_config_option(frontend, "configs/frontend.toml")
     frontend.add_argument("--images", action="store_true", help="write the keyframes' images")
     frontend.add_argument(
         "--left-topic", metavar="TOPIC",
@@ -529,10 +537,8 @@ def build_parser() -> argparse.ArgumentParser:
         "source", type=Path, metavar="FILE",
         help="GTSAM's 2-D landmark text format: ODOMETRY/EDGE2, LANDMARK and BR lines",
     )  # fmt: skip
-    convert.add_argument("--out", required=True, type=Path, metavar="LOG.mcap")
-    convert.add_argument(
-        "--config", type=Path, metavar="FILE", help="TOML over configs/landmarks2d.toml"
-    )
+    _add_log_out(convert)
+    _add_config_option(convert, "configs/landmarks2d.toml")
 
     inspect = _subcommand(
         commands, "inspect", "what a log holds, and whether it is valid", _cmd_inspect
@@ -561,9 +567,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("log", type=Path, metavar="LOG.mcap")
     replay.add_argument("--method", required=True, choices=METHODS)
     replay.add_argument("--out", required=True, type=Path, metavar="DIR")
-    replay.add_argument(
-        "--config", type=Path, metavar="FILE", help="TOML over configs/default.toml"
-    )
+    _add_config_option(replay, "configs/default.toml")
     replay.add_argument(
         "--mcap", type=Path, metavar="FILE",
         help="also write the estimate as Foxglove messages to FILE (an MCAP file)",
@@ -584,9 +588,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument(
         "--out", required=True, type=Path, metavar="DIR", help="DIR/METHOD/ for each method"
     )
-    compare.add_argument(
-        "--config", type=Path, metavar="FILE", help="TOML over configs/default.toml"
-    )
+    _add_config_option(compare, "configs/default.toml")
     compare.add_argument(
         "--workers", type=number_in(int, 1), default=1, metavar="N",
         help="runs at a time, each in its own process (default 1: one after another)",

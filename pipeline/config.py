@@ -169,10 +169,12 @@ class Config:
 
 def load_config(path: str | Path | None = None) -> Config:
     """The defaults, with the keys of `path` (if given) put over them."""
-    default = settings.config_path("default.toml")
-    config = settings.load(Config, default, path)
+    return settings.load_checked(Config, settings.config_path("default.toml"), path, _check)
+
+
+def _check(config: Config, source: Path | str) -> None:
+    """What the keys' own ranges cannot say."""
     n, a = config.noise, config.association
-    source = path if path is not None else default
     settings.require(
         all(n.min_scale <= x <= n.max_scale for x in (*n.odometry_scale, *n.measurement_scale)),
         source,
@@ -183,4 +185,3 @@ def load_config(path: str | Path | None = None) -> Config:
         source,
         "association.crowded_loop_pairs must be >= association.min_loop_pairs",
     )
-    return config

@@ -426,3 +426,16 @@ def load(cls: type[T], default: Path, override: str | Path | None = None) -> T:
         source = Path(override)
         merge(table, copy.deepcopy(read_toml(source)), cls, source)
     return build(cls, table, source)
+
+
+def load_checked(
+    cls: type[T],
+    default: Path,
+    override: str | Path | None,
+    check: Callable[[T, Path | str], None],
+) -> T:
+    """As `load`, then `check(config, path)` for what the keys' own ranges cannot say; a
+    refusal names `override` if given, else `default`."""
+    config = load(cls, default, override)
+    check(config, override if override is not None else default)
+    return config

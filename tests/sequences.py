@@ -90,29 +90,46 @@ def image_message(ts: Any, image: np.ndarray, stamp_ns: int, compressed: bool) -
 
 def camera_info(
     ts: Any,
-    stamp_ns: int,
+    header: Any,
     size: tuple[int, int],
-    K: np.ndarray,
-    D: np.ndarray,
-    R: np.ndarray,
-    P: np.ndarray,
+    calibration: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     distortion_model: str = "plumb_bob",
 ) -> Any:
+    """A CameraInfo of the typestore `ts` (ROS 1 or 2) for images of `size` (width, height):
+    its `calibration` (K, D, R, P), no binning, no region of interest."""
     CameraInfo = ts.types["sensor_msgs/msg/CameraInfo"]
     RegionOfInterest = ts.types["sensor_msgs/msg/RegionOfInterest"]
+    K, D, R, P = calibration
+    matrices = {
+        "d": np.asarray(D, float),
+        "k": np.asarray(K, float).ravel(),
+        "r": np.asarray(R, float).ravel(),
+        "p": np.asarray(P, float).ravel(),
+    }
+    if "D" in CameraInfo.__dataclass_fields__:  # ROS 1 names them upper-case
+        matrices = {name.upper(): matrix for name, matrix in matrices.items()}
     return CameraInfo(
-        header=_header(ts, stamp_ns, "camera"),
+        header=header,
         height=size[1],
         width=size[0],
         distortion_model=distortion_model,
-        d=np.asarray(D, float),
-        k=np.asarray(K, float).ravel(),
-        r=np.asarray(R, float).ravel(),
-        p=np.asarray(P, float).ravel(),
+        **matrices,
         binning_x=0,
         binning_y=0,
-        roi=RegionOfInterest(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False),
+        roi=RegionOfInterest(0, 0, 0, 0, False),
     )
+
+
+def side_calibration(
+    frames: Frames,
+    infos: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None,
+    side: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One side's (K, D, R, P): the given `infos`, else the frames' rectified camera."""
+    if infos is not None:
+        return infos[side]
+    k = frames.intrinsics
+    return k.camera_matrix, np.zeros(5), np.eye(3), rectified_projections(k)[side]
 
 
 def rectified_projections(k: StereoIntrinsics) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +165,6 @@ def write_bag(
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     k = frames.intrinsics
     size = (k.width, k.height)
-    projections = rectified_projections(k)
     with Writer(path, version=9, storage_plugin=plugin) as writer:
         images = [writer.add_connection(t, image_type, typestore=ts) for t in topics]
         info_connections = []
@@ -174,12 +190,9 @@ def write_bag(
                 message = image_message(ts, image, header_stamp, compressed)
                 writer.write(images[side], side_stamp, ts.serialize_cdr(message, image_type))
                 if info_connections:
-                    K, D, R, P = (
-                        infos[side]
-                        if infos is not None
-                        else (k.camera_matrix, np.zeros(5), np.eye(3), projections[side])
-                    )
-                    info = camera_info(ts, side_stamp, size, K, D, R, P, distortion_model)
+                    header = _header(ts, side_stamp, "camera")
+                    calibration = side_calibration(frames, infos, side)
+                    info = camera_info(ts, header, size, calibration, distortion_model)
                     data = ts.serialize_cdr(info, "sensor_msgs/msg/CameraInfo")
                     writer.write(info_connections[side], side_stamp, data)
             for connection in others:
@@ -202,9 +215,8 @@ def write_ros1_bag(
     ts = get_typestore(Stores.ROS1_NOETIC)
     Header, Time = ts.types["std_msgs/msg/Header"], ts.types["builtin_interfaces/msg/Time"]
     Image, CameraInfo = ts.types["sensor_msgs/msg/Image"], ts.types["sensor_msgs/msg/CameraInfo"]
-    RegionOfInterest = ts.types["sensor_msgs/msg/RegionOfInterest"]
     k = frames.intrinsics
-    projections = rectified_projections(k)
+    size = (k.width, k.height)
     with Writer(path) as writer:
         images, cameras = [], []
         for topic in topics:
@@ -220,24 +232,7 @@ def write_ros1_bag(
                 height, width = image.shape[:2]
                 message = Image(header, height, width, "mono8", 0, width, image.ravel())
                 writer.write(images[side], stamp, ts.serialize_ros1(message, Image.__msgtype__))
-                K, D, R, P = (
-                    infos[side]
-                    if infos is not None
-                    else (k.camera_matrix, np.zeros(5), np.eye(3), projections[side])
-                )
-                info = CameraInfo(
-                    header=header,
-                    height=k.height,
-                    width=k.width,
-                    distortion_model="plumb_bob",
-                    D=np.asarray(D, float),
-                    K=np.asarray(K, float).ravel(),
-                    R=np.asarray(R, float).ravel(),
-                    P=np.asarray(P, float).ravel(),
-                    binning_x=0,
-                    binning_y=0,
-                    roi=RegionOfInterest(0, 0, 0, 0, False),
-                )
+                info = camera_info(ts, header, size, side_calibration(frames, infos, side))
                 data = ts.serialize_ros1(info, CameraInfo.__msgtype__)
                 writer.write(cameras[side], stamp, data)
     return path

@@ -8,18 +8,10 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from pipeline.foxglove.log_topics import foxglove_mirror
-from pipeline.geometry import bearing_elevation_range, quaternion_from_rotation
-from pipeline.log import (
-    Detection,
-    Detections,
-    GroundTruthLandmark,
-    GroundTruthLandmarks,
-    GroundTruthPose,
-    LogMetadata,
-    LogWriter,
-    Odometry,
-)
+from data_tools.scenarios.common import MeasuredOdometry, SimulatedRun, truth_landmarks
+from data_tools.scenarios.writing import write_log
+from pipeline.geometry import bearing_elevation_range
+from pipeline.log import Detection
 
 ODOM_SIGMAS = np.array([1e-3, 1e-3, 2e-3, 0.02, 0.01, 0.005])  # rx ry rz tx ty tz
 MEAS_SIGMAS = np.array([0.01, 0.01, 0.1])  # bearing, elevation, range
@@ -53,10 +45,6 @@ class Scene:
         return out
 
 
-def pose_tuple(pose: gtsam.Pose3) -> tuple[tuple, tuple]:
-    return tuple(pose.translation()), tuple(quaternion_from_rotation(pose.rotation().matrix()))
-
-
 def square_loop(side: float = 20.0, step: float = 1.0, laps: float = 1.0) -> list[gtsam.Pose3]:
     """A square driven counter-clockwise, poses every `step` metres, turning at the corners."""
     poses = [gtsam.Pose3()]
@@ -84,67 +72,56 @@ def write_scene(
     scales 0 give exact measurements."""
     rng = np.random.default_rng(seed)
     C = scene.num_classes
-    confusion = scene.confusion if scene.confusion is not None else np.eye(C)
-    metadata = LogMetadata(
-        num_classes=C,
-        confusion_matrix=tuple(tuple(float(v) for v in row) for row in confusion),
-        class_names=tuple(f"class{c}" for c in range(C)),
-        source="tests/synthetic.py",
-    )
-    odom_cov = np.diag(ODOM_SIGMAS**2)
-    meas_cov = np.diag(MEAS_SIGMAS**2)
+    meas_cov = tuple(np.diag(MEAS_SIGMAS**2).ravel())
     by_pose: dict[int, list[int]] = {}
     for i, j in scene.visible():
         by_pose.setdefault(i, []).append(j)
-    stamp = lambda i: start_ns + i * 100_000_000  # noqa: E731
-    with LogWriter(path, metadata, foxglove_mirror) as w:
-        if ground_truth:
-            w.write(
-                GroundTruthLandmarks(
-                    stamp(0),
-                    tuple(
-                        GroundTruthLandmark(j, int(c), tuple(map(float, lm)))
-                        for j, (lm, c) in enumerate(
-                            zip(scene.landmarks, scene.classes, strict=True)
-                        )
-                    ),
+    steps, step_sigmas, frames = [], [], []
+    # Pose by pose, its odometry's noise drawn before its detections'.
+    for i, pose in enumerate(scene.poses):
+        if i in scene.odometry_overrides:
+            reported, sigmas = scene.odometry_overrides[i]
+            steps.append(reported.matrix())
+            step_sigmas.append(sigmas)
+        elif i > 0:
+            true_step = scene.poses[i - 1].between(pose)
+            noise = gtsam.Pose3.Expmap(rng.normal(size=6) * ODOM_SIGMAS * odom_noise)
+            steps.append(true_step.compose(noise).matrix())
+            step_sigmas.append(ODOM_SIGMAS)
+        dets = []
+        for j in by_pose.get(i, []):
+            z = bearing_elevation_range(pose.transformTo(scene.landmarks[j]))
+            z = z + rng.normal(size=3) * MEAS_SIGMAS * meas_noise
+            reported = int(scene.classes[j])
+            if (i, j) in scene.misreports:
+                reported = (reported + 1) % C
+            dets.append(
+                Detection(
+                    class_id=reported,
+                    score=0.9,
+                    bearing=float(z[0]),
+                    elevation=float(z[1]),
+                    range=float(z[2]),
+                    covariance=meas_cov,
+                    source="bbox",
+                    truth_landmark_id=j if truth_ids else None,
                 )
             )
-        for i, pose in enumerate(scene.poses):
-            if i in scene.odometry_overrides:
-                reported, sigmas = scene.odometry_overrides[i]
-                t, q = pose_tuple(reported)
-                w.write(Odometry(stamp(i), i - 1, i, t, q, tuple(np.diag(sigmas**2).ravel())))
-            elif i > 0:
-                true_step = scene.poses[i - 1].between(pose)
-                noisy = true_step.compose(
-                    gtsam.Pose3.Expmap(rng.normal(size=6) * ODOM_SIGMAS * odom_noise)
-                )
-                t, q = pose_tuple(noisy)
-                w.write(Odometry(stamp(i), i - 1, i, t, q, tuple(odom_cov.ravel())))
-            if ground_truth:
-                t, q = pose_tuple(pose)
-                w.write(GroundTruthPose(stamp(i), i, t, q))
-            dets = []
-            for j in by_pose.get(i, []):
-                z = bearing_elevation_range(pose.transformTo(scene.landmarks[j]))
-                z = z + rng.normal(size=3) * MEAS_SIGMAS * meas_noise
-                reported = int(scene.classes[j])
-                if (i, j) in scene.misreports:
-                    reported = (reported + 1) % C
-                dets.append(
-                    Detection(
-                        class_id=reported,
-                        score=0.9,
-                        bearing=float(z[0]),
-                        elevation=float(z[1]),
-                        range=float(z[2]),
-                        covariance=tuple(meas_cov.ravel()),
-                        source="bbox",
-                        truth_landmark_id=j if truth_ids else None,
-                    )
-                )
-            w.write(Detections(stamp(i), i, tuple(dets)))
+        frames.append(dets)
+    run = SimulatedRun(
+        times_ns=start_ns + np.arange(len(scene.poses)) * 100_000_000,
+        poses=np.array([pose.matrix() for pose in scene.poses]),
+        odometry=MeasuredOdometry(
+            np.reshape(steps, (-1, 4, 4)),
+            np.reshape([np.diag(sigmas**2) for sigmas in step_sigmas], (-1, 6, 6)),
+        ),
+        detections=frames,
+        landmarks=truth_landmarks(scene.landmarks, scene.classes),
+        confusion=scene.confusion if scene.confusion is not None else np.eye(C),
+        class_names=[f"class{c}" for c in range(C)],
+        ground_truth=ground_truth,
+    )
+    write_log(path, run, "tests/synthetic.py")
     return path
 
 

@@ -160,24 +160,38 @@ def test_max_mixture_switches_component_when_the_estimate_moves(tmp_path, select
     assert record_at(ml, KIDNAP_POSE, 0).landmark_id == landmark_of_truth(ml)[0]
 
 
-@pytest.mark.e2e
-def test_class_posterior_follows_the_reports(tmp_path):
+def class_reports_scene() -> Scene:
+    """Two landmarks of classes 0 and 1 seen from every pose of a quarter lap, each report
+    drawn through a confusion matrix that confuses them 3 times in 10: a minority of the
+    reports (`misreports`) name the other class."""
     confusion = np.array([[0.7, 0.3], [0.3, 0.7]])
     poses = square_loop(8.0, 1.0, laps=0.25)
     landmarks = np.array([[4.0, 3.0, 0.0], [6.0, -3.0, 0.0]])
-    misreports = {(0, 0), (1, 0), (2, 1)}  # the minority of reports
+    misreports = {(0, 0), (1, 0), (2, 1)}
     scene = Scene(poses, landmarks, np.array([0, 1]), confusion=confusion, misreports=misreports)
     scene.sightings = [(i, j) for i in range(len(poses)) for j in range(2)]
-    log = write_scene(tmp_path / "classes.mcap", scene, odom_noise=0.0, meas_noise=0.0)
-    backend = run_backend(log, "known")
-    reports = {0: [0] * len(poses), 1: [1] * len(poses)}
-    for i, j in misreports:
+    return scene
+
+
+def assert_class_posteriors_follow_the_reports(backend: Backend, scene: Scene) -> None:
+    """Every landmark of `scene`'s log (`class_reports_scene`), surely associated, holds the
+    class posterior its reports give, P(c) ~ prod P(report | c), and its true class wins."""
+    assert scene.confusion is not None
+    reports = {j: [int(c)] * len(scene.poses) for j, c in enumerate(scene.classes)}
+    for i, j in scene.misreports:
         reports[j][i] = 1 - reports[j][i]
+    assert len(backend.landmarks.landmarks) == len(scene.landmarks)
     for j, landmark in backend.landmarks.landmarks.items():
-        # a sure association multiplies likelihoods: P(c) ~ prod P(report | c)
-        expected = np.array([np.prod(confusion[c, reports[j]]) for c in range(2)])
+        expected = np.array([np.prod(scene.confusion[c, reports[j]]) for c in range(2)])
         np.testing.assert_allclose(landmark.class_probabilities, expected / expected.sum())
         assert landmark.map_class == j
+
+
+@pytest.mark.e2e
+def test_class_posterior_follows_the_reports(tmp_path):
+    scene = class_reports_scene()
+    log = write_scene(tmp_path / "classes.mcap", scene, odom_noise=0.0, meas_noise=0.0)
+    assert_class_posteriors_follow_the_reports(run_backend(log, "known"), scene)
 
 
 def test_known_takes_a_report_its_confusion_matrix_calls_impossible(tmp_path):
@@ -292,8 +306,9 @@ def assert_every_factor_at(backend: Backend, odometry: np.ndarray, bearing: floa
 
 
 # Calibrated on seeds 1-3 of each (three laps of the square, updates every 10 keyframes):
-# yaw sigmas x6 (variance x36) read 20-37, forward x4 (x16) 12-24, bearing x0.3 (x0.09)
-# 0.03-0.09; stated right, nothing moved.
+# yaw sigmas x6 (variance x36) read 15-28, forward x4 (x16) 8.4-9.2, bearing x0.3 (x0.09)
+# 0.09-0.17: short of an odometry's truth where landmarks decide part of a window (drift.py).
+# Stated right, nothing moved on seeds 1-2; on seed 3 the roll, to 3.0 (docs/method.md).
 @pytest.mark.slow
 @pytest.mark.e2e
 @pytest.mark.parametrize("seed", [1, 2])
@@ -366,14 +381,14 @@ def test_loops_close_where_the_log_understates_its_drift(tmp_path, seed):
     stated_per_tag = metrics["stated"]["association_one_to_one"]["landmarks_per_true"]
     assert drift_per_tag <= 1.08 and stated_per_tag >= 1.15
     assert stated_per_tag - drift_per_tag >= 0.15
-    # metrics.json says what the loops said: the drift is many times the log's (the prior
-    # puts a quarter on scales above 10)
+    # metrics.json says what the loops said: the drift is many times the log's, in the yaw's
+    # scale learnt from the windows across them (the loops' own belief restarts from its prior
+    # when the scales move: it says how far the drift exceeds the scales in use)
     drift = metrics["drift"]["loop_drift"]
     assert drift["loops"] > 0 and sum(drift["probabilities"]) == pytest.approx(1.0, abs=1e-3)
-    above_ten = sum(
-        p for c, p in zip(drift["scales"], drift["probabilities"], strict=True) if c > 10
-    )
-    assert above_ten > 0.5
+    learnt = metrics["drift"]["noise_scales"]["odometry"]
+    assert learnt["yaw"] > 10.0
+    assert all(learnt[axis] == 1.0 for axis in ("roll", "pitch", "forward", "lateral", "vertical"))
 
 
 def test_a_keyframe_tells_its_heartbeat_what_it_is_doing(tmp_path, square_scene):

@@ -42,7 +42,13 @@ from tests.synthetic import (
     square_loop,
     write_scene,
 )
-from tests.test_backend import landmark_of_truth, record_at, run_backend
+from tests.test_backend import (
+    assert_class_posteriors_follow_the_reports,
+    class_reports_scene,
+    landmark_of_truth,
+    record_at,
+    run_backend,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -431,25 +437,13 @@ def test_an_outlier_beside_a_landmark_is_no_pull_on_it(tmp_path, new_landmark_we
 
 
 def test_class_posterior_follows_the_reports_through_the_confusion(tmp_path):
-    confusion = np.array([[0.7, 0.3], [0.3, 0.7]])
-    poses = square_loop(8.0, 1.0, laps=0.25)
-    landmarks = np.array([[4.0, 3.0, 0.0], [6.0, -3.0, 0.0]])
-    misreports = {(0, 0), (1, 0), (2, 1)}
-    scene = Scene(poses, landmarks, np.array([0, 1]), confusion=confusion, misreports=misreports)
-    scene.sightings = [(i, j) for i in range(len(poses)) for j in range(2)]
+    scene = class_reports_scene()
     log = write_scene(tmp_path / "classes.mcap", scene, odom_noise=0.0, meas_noise=0.0)
     backend = run_backend(log, "dcsam")
     backend.result()
-    assert len(backend.landmarks.landmarks) == 2
     for r in backend.records[2:]:
         assert isinstance(r, HybridRecord) and r.landmark_id == r.landmark_ids[0]
-    reports = {0: [0] * len(poses), 1: [1] * len(poses)}
-    for i, j in misreports:
-        reports[j][i] = 1 - reports[j][i]
-    for j, landmark in backend.landmarks.landmarks.items():
-        expected = np.array([np.prod(confusion[c, reports[j]]) for c in range(2)])
-        np.testing.assert_allclose(landmark.class_probabilities, expected / expected.sum())
-        assert landmark.map_class == j
+    assert_class_posteriors_follow_the_reports(backend, scene)
 
 
 def test_decided_at_the_drifted_prediction_a_wrong_loop_closure_is_taken(tmp_path):

@@ -25,102 +25,48 @@ from pipeline.frontend.config import load_frontend_config
 from tests import real_data
 from tests.detector import installed
 
+ANCHORS = "10,14,  23,27,  37,58,  81,82,  135,169,  344,319"
+
+
+def cfg_section(kind: str, **options: object) -> str:
+    """One `[kind]` section of a darknet cfg, its options in order."""
+    return f"[{kind}]\n" + "".join(f"{key}={value}\n" for key, value in options.items()) + "\n"
+
+
+def convolution(filters: int, size: int, activation: str = "leaky") -> str:
+    """A stride-1 padded convolution; the leaky ones batch-normed, the linear (head) ones not."""
+    normed = {"batch_normalize": 1} if activation == "leaky" else {}
+    shape = {"filters": filters, "size": size, "stride": 1, "pad": 1}
+    return cfg_section("convolutional", **normed, **shape, activation=activation)
+
+
+def yolo_head(mask: str) -> str:
+    return cfg_section("yolo", mask=mask, anchors=ANCHORS, classes=3, num=6)
+
+
 # A small network with every layer kind of yolov3-tiny: batch-normed leaky convolutions, 2x2
 # maxpools of stride 2 and of stride 1, two yolo heads, a route back, an upsample and a route
 # joining two layers.
-TINY_CFG = """
-[net]
-width=64
-height=64
-channels=3
-
-[convolutional]
-batch_normalize=1
-filters=8
-size=3
-stride=1
-pad=1
-activation=leaky
-
-[maxpool]
-size=2
-stride=2
-
-[convolutional]
-batch_normalize=1
-filters=16
-size=3
-stride=1
-pad=1
-activation=leaky
-
-[maxpool]
-size=2
-stride=2
-
-[convolutional]
-batch_normalize=1
-filters=16
-size=3
-stride=1
-pad=1
-activation=leaky
-
-[maxpool]
-size=2
-stride=1
-
-[convolutional]
-batch_normalize=1
-filters=16
-size=1
-stride=1
-pad=1
-activation=leaky
-
-[convolutional]
-size=1
-stride=1
-pad=1
-filters=24
-activation=linear
-
-[yolo]
-mask = 3,4,5
-anchors = 10,14,  23,27,  37,58,  81,82,  135,169,  344,319
-classes=3
-num=6
-
-[route]
-layers = -4
-
-[convolutional]
-batch_normalize=1
-filters=8
-size=1
-stride=1
-pad=1
-activation=leaky
-
-[upsample]
-stride=2
-
-[route]
-layers = -1, 2
-
-[convolutional]
-size=3
-stride=1
-pad=1
-filters=24
-activation=linear
-
-[yolo]
-mask = 0,1,2
-anchors = 10,14,  23,27,  37,58,  81,82,  135,169,  344,319
-classes=3
-num=6
-"""
+TINY_CFG = "".join(
+    [
+        cfg_section("net", width=64, height=64, channels=3),
+        convolution(8, 3),
+        cfg_section("maxpool", size=2, stride=2),
+        convolution(16, 3),
+        cfg_section("maxpool", size=2, stride=2),
+        convolution(16, 3),
+        cfg_section("maxpool", size=2, stride=1),
+        convolution(16, 1),
+        convolution(24, 1, "linear"),
+        yolo_head("3,4,5"),
+        cfg_section("route", layers="-4"),
+        convolution(8, 1),
+        cfg_section("upsample", stride=2),
+        cfg_section("route", layers="-1, 2"),
+        convolution(24, 3, "linear"),
+        yolo_head("0,1,2"),
+    ]
+)
 TINY_NAMES = ["car", "bus", "dog"]
 
 

@@ -299,7 +299,8 @@ def test_a_stopped_compare_leaves_no_process_no_temporary_and_the_old_comparison
     """Issue 53: a killed `compare --workers 2` left both workers and the resource tracker
     running under PID 1, writing method folders after their parent had died, and a
     $TMPDIR/mmslam-compare-* folder."""
-    from tests.test_sweep_stops import PATIENCE_S, alive, wait_for
+    from tests.test_sweep_stops import PATIENCE_S, alive
+    from tests.waiting import wait_until
 
     out = tmp_path / "cmp"
     assert main(compare_args(small_log, "known", out)) == 0
@@ -316,14 +317,16 @@ def test_a_stopped_compare_leaves_no_process_no_temporary_and_the_old_comparison
         text=True,
     )
     # the resource tracker and the two workers, started
-    below = wait_for(lambda: len(found := descendants(stopped.pid)) >= 3 and found, "workers")
+    below = wait_until(
+        lambda: len(found := descendants(stopped.pid)) >= 3 and found, "workers", PATIENCE_S
+    )
     stopped.send_signal(how)
     _, err = stopped.communicate(timeout=PATIENCE_S)
     if how == signal.SIGTERM:
         assert stopped.returncode == 143 and err == "mmslam compare: terminated\n", err
     else:
         assert stopped.returncode == -signal.SIGKILL and err == "", err
-    wait_for(lambda: not alive(below), "the workers and the resource tracker to die")
+    wait_until(lambda: not alive(below), "the workers and the resource tracker to die", PATIENCE_S)
     assert comparison(out) == old  # nothing written by workers after their parent died
     assert list(temporary.iterdir()) == []
     assert not (tmp_path / "all.rrd").exists()

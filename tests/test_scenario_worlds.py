@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from data_tools.scenarios import city_grid, planar_park, simulate
+from data_tools.scenarios import city_grid, load_config, simulate
+from data_tools.scenarios.geometry import inside_any
 from pipeline.backend.planar import is_planar
 from pipeline.log import read_log
 from tests.test_scenarios import (
@@ -32,7 +33,7 @@ def park(tmp_path_factory):
 
 
 def test_city_vehicles_stand_in_regular_slots_along_the_kerbs():
-    config = city_grid.load_config()
+    config = load_config("city-grid")
     world = city_grid.build_world(config)
     p = config.parking
     xs, ys = city_grid.street_lines(config.grid)
@@ -61,7 +62,7 @@ def test_city_measurement_noise_matches_the_written_covariance(city):
 
 
 def test_city_sees_no_vehicle_through_a_building(city):
-    config = city_grid.load_config()
+    config = load_config("city-grid")
     world = city_grid.build_world(config)
     poses = np.array([np.array(m.translation) for m in city.ground_truth_poses])
     landmarks = {lm.id: np.array(lm.position) for lm in city.ground_truth_landmarks.landmarks}
@@ -71,7 +72,7 @@ def test_city_sees_no_vehicle_through_a_building(city):
     for k, det, _ in true_detections(city)[::7]:
         start, end = poses[k, :2], landmarks[det.truth_landmark_id][:2]
         samples = start + np.linspace(0.05, 0.95, 50)[:, None] * (end - start)
-        assert not city_grid.inside_any(samples, buildings).any()
+        assert not inside_any(samples, buildings).any()
 
 
 def test_city_streets_are_driven_again(city):
@@ -93,14 +94,14 @@ def test_park_is_planar(park):
     # the back-end's own test: height, roll, pitch and elevation zero to round-off
     assert is_planar(park)
     _, cov = odometry_residuals(park)
-    flat = planar_park.load_config().odometry.stated_flat_variance
+    flat = load_config("planar-park").odometry.stated_flat_variance
     np.testing.assert_allclose(cov[:, [0, 1, 5], [0, 1, 5]], flat)
 
 
 @pytest.mark.slow
 def test_park_bearing_noise_is_smaller_than_the_log_says(park):
     rows = true_detections(park)
-    scanner = planar_park.load_config().scanner
+    scanner = load_config("planar-park").scanner
     bearing = np.array([d.bearing for _, d, _ in rows]) - np.array(
         [math.atan2(p[1], p[0]) for _, _, p in rows]
     )
@@ -117,7 +118,7 @@ def test_park_odometry_errs_by_a_slow_bias(park):
     lag1 = np.corrcoef(yaw[:-1], yaw[1:])[0, 1]
     assert lag1 > 0.8  # white noise would give about 0
     # and the drift over the run is far beyond what the stated sigmas allow
-    stated = planar_park.load_config().odometry.stated_sigma_yaw_rad
+    stated = load_config("planar-park").odometry.stated_sigma_yaw_rad
     assert abs(np.sum(yaw)) > 5 * stated * math.sqrt(len(yaw))
 
 

@@ -20,7 +20,15 @@ import numpy as np
 import pytest
 
 from data_tools.data import KITTI05_DIR
-from data_tools.scenarios import SCENARIOS, city_grid, common, indoor_tags, kitti05_cars, simulate
+from data_tools.scenarios import (
+    SCENARIOS,
+    city_grid,
+    common,
+    indoor_tags,
+    kitti05_cars,
+    load_config,
+    simulate,
+)
 from data_tools.scenarios.geometry import quaternion_from_rotation, se3_exp
 from data_tools.scenarios.noise import confusion_matrix, sample_reported_classes
 from pipeline.cli import main
@@ -189,7 +197,7 @@ def test_noise_scale_zero_leaves_only_the_calibrated_noise(run):
 
 @pytest.mark.slow
 def test_indoor_point_and_pose_noise_match_the_written_covariances(run):
-    world_config = indoor_tags.load_config()
+    world_config = load_config("indoor-tags")
     world = indoor_tags.build_world(world_config)
     tag_poses = np.linalg.inv(world.poses[0]) @ world.tag_poses  # in the first body frame
     points, pose_residuals, point_cov, pose_cov = [], [], [], []

@@ -14,8 +14,8 @@ import pytest
 
 import pipeline.replay
 from data_tools.sweep import load_sweep_config, run_sweep
-from data_tools.sweep.config import Axis, SweepConfig, to_json
-from data_tools.sweep.grid import Cell, cells, runs
+from data_tools.sweep.config import SweepConfig, to_json
+from data_tools.sweep.grid import cells, runs
 from data_tools.sweep.report import main as report_main
 from data_tools.sweep.results import COLUMNS, OPTIONAL, ResultRow, read_results, results_text
 from data_tools.sweep.stats import summarise_method
@@ -23,6 +23,7 @@ from data_tools.sweep.tables import best_text, error_table
 from pipeline.cli import main as cli_main
 from pipeline.cli import sweep_config
 from pipeline.errors import InputError
+from tests.sweep_rows import HAND_CONFIG, HAND_ROWS
 
 ROOT = Path(__file__).resolve().parents[1]
 SWEEPS = ROOT / "configs" / "sweeps"
@@ -99,6 +100,16 @@ def tiny_sweep(tmp_path_factory):
     return config, out, summary
 
 
+@pytest.fixture
+def swept(tiny_sweep, tmp_path) -> tuple[Path, Path]:
+    """The tiny sweep's config, and a copy of its finished output folder for a test to change
+    and sweep again."""
+    config, first, _ = tiny_sweep
+    out = tmp_path / "out"
+    shutil.copytree(first, out)
+    return config, out
+
+
 # --- end to end -------------------------------------------------------------------------------
 
 
@@ -171,12 +182,8 @@ def test_tiny_sweep_end_to_end(tiny_sweep):
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_resumption_skips_finished_runs_and_gives_the_same_tables(
-    tiny_sweep, tmp_path, monkeypatch
-):
-    config, first, _ = tiny_sweep
-    out = tmp_path / "out"
-    shutil.copytree(first, out)
+def test_resumption_skips_finished_runs_and_gives_the_same_tables(swept, monkeypatch):
+    config, out = swept
     tables, results = (out / "tables.md").read_bytes(), read_results(out / "results.csv")
     replays: list[str] = []
     real_replay = pipeline.replay.replay
@@ -207,10 +214,8 @@ def test_resumption_skips_finished_runs_and_gives_the_same_tables(
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_sweep, tmp_path):
-    config, first, _ = tiny_sweep
-    out = tmp_path / "out"
-    shutil.copytree(first, out)
+def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(swept):
+    config, out = swept
     older = out / "runs/noise0-mis0.1/seed0/ml/metrics.json"
     metrics = json.loads(older.read_text())
     for key in ("association_one_to_one", "merges", "noise_scales", "solver_fallbacks"):
@@ -231,10 +236,8 @@ def test_runs_from_before_the_newer_metrics_are_kept_with_empty_columns(tiny_swe
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, tmp_path, capsys):
-    _, first, _ = tiny_sweep
-    out = tmp_path / "out"
-    shutil.copytree(first, out)
+def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(swept, tmp_path, capsys):
+    _, out = swept
     config = write(tmp_path, TINY.split("[[axes]]")[0])  # the base cell of the same set-up
     args = ["sweep", str(config), "--out", str(out), "--workers", "1"]  # no -q: its result lines
     assert cli_main([*args, "--seeds", "2"]) == 0
@@ -258,10 +261,9 @@ def test_seeds_override_adds_seeds_and_ends_with_a_line_per_method(tiny_sweep, t
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, tmp_path, monkeypatch):
-    config, first, _ = tiny_sweep
-    out = tmp_path / "out"
-    shutil.copytree(first, out)
+def test_a_failed_run_is_reported_kept_out_and_retried(tiny_sweep, swept, monkeypatch):
+    first = tiny_sweep[1]
+    config, out = swept
     run = out / "runs/noise1-mis0.1/seed0/mm-nh"
     shutil.rmtree(run)
     real_replay = pipeline.replay.replay
@@ -314,68 +316,6 @@ def test_a_bad_dask_address_is_an_input_error(tmp_path):
 
 
 # --- tables from a hand-made results file -----------------------------------------------------
-
-HAND_CONFIG = SweepConfig(
-    name="hand",
-    scenario="indoor-tags",
-    scenario_config=None,
-    backend_config=None,
-    num_classes=2,
-    true_covariance=False,
-    seeds=(0, 1, 2),
-    methods=("known", "ml", "mm-nh"),
-    odom_noise_scale=1.0,
-    misclassification=0.1,
-    axes=(Axis("noise", "odom_noise_scale", (1.0, 4.0)),),
-    fingerprint="0",
-)
-
-
-def hand_row(cell: Cell, seed: int, method: str, t: tuple, r: tuple, a: tuple) -> ResultRow:
-    return ResultRow(
-        cell=cell.name,
-        odom_noise_scale=cell.odom_noise_scale,
-        misclassification=cell.misclassification,
-        seed=seed,
-        method=method,
-        translation_max=t[0],
-        translation_mean=t[1],
-        translation_median=t[2],
-        translation_rmse=t[3],
-        rotation_max=r[0],
-        rotation_mean=r[1],
-        rotation_median=r[2],
-        rotation_rmse=r[3],
-        correct=a[0],
-        wrong=a[1],
-        null=a[2],
-        unlabelled=0,
-        switches=a[3],
-        num_poses=100,
-        num_detections=a[0] + a[1] + a[2],
-        num_landmarks=a[4],
-        runtime_s=1.5,
-    )
-
-
-BASE, NOISY = Cell(1.0, 0.1), Cell(4.0, 0.1)
-HAND_ROWS = [
-    # known: translation RMSE 1, 2, 3 on the base cell
-    hand_row(BASE, 0, "known", (2.0, 1.0, 0.9, 1.0), (0.02, 0.01, 0.01, 0.01), (10, 0, 0, 0, 5)),
-    hand_row(BASE, 1, "known", (3.0, 1.5, 1.4, 2.0), (0.04, 0.02, 0.02, 0.02), (10, 0, 0, 0, 5)),
-    hand_row(BASE, 2, "known", (4.0, 2.0, 1.9, 3.0), (0.06, 0.03, 0.03, 0.03), (10, 0, 0, 0, 5)),
-    hand_row(BASE, 0, "ml", (10.0, 6.0, 5.0, 7.0), (0.3, 0.1, 0.09, 0.12), (7, 3, 0, 1, 8)),
-    hand_row(BASE, 1, "ml", (20.0, 9.0, 8.0, 11.0), (0.5, 0.2, 0.19, 0.22), (8, 2, 0, 0, 7)),
-    hand_row(BASE, 2, "ml", (33.0, 12.0, 11.0, 13.0), (0.7, 0.3, 0.29, 0.32), (6, 4, 0, 2, 9)),
-    hand_row(BASE, 0, "mm-nh", (4.0, 2.0, 1.5, 2.5), (0.1, 0.05, 0.04, 0.06), (9, 0, 1, 3, 6)),
-    hand_row(BASE, 1, "mm-nh", (5.0, 3.0, 2.5, 3.5), (0.2, 0.06, 0.05, 0.07), (9, 1, 0, 1, 6)),
-    # mm-nh seed 2 is missing: its numbers are means over two runs
-    hand_row(NOISY, 0, "known", (9, 9, 9, 9.0), (0.9, 0.9, 0.9, 0.9), (10, 0, 0, 0, 5)),
-    hand_row(NOISY, 1, "known", (9, 9, 9, 5.0), (0.9, 0.9, 0.9, 0.5), (10, 0, 0, 0, 5)),
-    hand_row(NOISY, 2, "known", (9, 9, 9, 7.0), (0.9, 0.9, 0.9, 0.7), (10, 0, 0, 0, 5)),
-    hand_row(NOISY, 0, "ml", (9, 9, 9, 40.0), (0.9, 0.9, 0.9, 0.4), (10, 0, 0, 0, 5)),
-    hand_row(NOISY, 1, "ml", (9, 9, 9, 20.0), (0.9, 0.9, 0.9, 0.2), (10, 0, 0, 0, 5)),
-]
 
 
 def test_tables_from_a_hand_made_results_file_match_hand_computed_values(tmp_path):
@@ -443,25 +383,30 @@ def axis_values(config: SweepConfig) -> dict[str, tuple[float, ...]]:
     return {a.factor: a.values for a in config.axes}
 
 
+def paper_sweeps(name: str, scenario: str, num_classes: int) -> list[SweepConfig]:
+    """The built-in sweep `name` (the noise drawn stated: true covariances, DC-SAM among the
+    methods) and its `-calibrated` twin, checked alike, for the test of what each holds."""
+    configs = []
+    for variant in (name, f"{name}-calibrated"):
+        config = builtin(variant)
+        assert (config.name, config.scenario) == (variant, scenario)
+        assert config.num_classes == num_classes
+        assert len(config.seeds) >= 10
+        assert config.methods == (WITH_DCSAM if variant == name else METHODS)
+        assert config.true_covariance == (variant == name)
+        configs.append(config)
+    return configs
+
+
 def test_built_in_sweeps_load_with_the_grids_intended():
     small = builtin("small")
     assert small.scenario == "indoor-tags" and small.methods == METHODS
     assert len(runs(small)) == 50  # stays small: it is the CI's sweep
 
-    for name in ("kitti05", "kitti05-calibrated"):
-        kitti = builtin(name)
-        assert (kitti.name, kitti.scenario, kitti.num_classes) == (name, "kitti05-cars", 1)
-        assert len(kitti.seeds) >= 10
-        assert kitti.methods == (WITH_DCSAM if name == "kitti05" else METHODS)
-        assert kitti.true_covariance == (name == "kitti05")
+    for kitti in paper_sweeps("kitti05", "kitti05-cars", 1):
         assert [c.name for c in cells(kitti)] == [f"noise{n}-mis0" for n in (3, 0, 1, 5)]
 
-    for name in ("indoor-tags", "indoor-tags-calibrated"):
-        indoor = builtin(name)
-        assert (indoor.name, indoor.scenario, indoor.num_classes) == (name, "indoor-tags", 2)
-        assert len(indoor.seeds) >= 10
-        assert indoor.methods == (WITH_DCSAM if name == "indoor-tags" else METHODS)
-        assert indoor.true_covariance == (name == "indoor-tags")
+    for indoor in paper_sweeps("indoor-tags", "indoor-tags", 2):
         factors = axis_values(indoor)
         assert factors["odom_noise_scale"] == (0, 1, 2, 4, 6, 8, 10)
         assert factors["misclassification"] == (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
@@ -535,10 +480,8 @@ def test_bad_output_folders_and_workers_are_input_errors(tiny_sweep, tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.e2e
-def test_a_folder_of_another_set_up_is_refused(tiny_sweep, tmp_path):
-    _, first, _ = tiny_sweep
-    out = tmp_path / "out"
-    shutil.copytree(first, out)
+def test_a_folder_of_another_set_up_is_refused(swept, tmp_path):
+    _, out = swept
     other = write(tmp_path, TINY.replace("seeds = [0]", "seeds = [0]\nnum_classes = 3"), "b.toml")
     with pytest.raises(InputError, match="another set-up"):
         run_sweep(other, out, progress=False)

@@ -29,7 +29,7 @@ from data_tools.sweep.stats import (
 )
 from data_tools.sweep.tables import estimate_text, headline_text, render_tables
 from pipeline.errors import InputError
-from tests.test_sweep import BASE, HAND_CONFIG, HAND_ROWS
+from tests.sweep_rows import BASE, HAND_CONFIG, HAND_ROWS
 
 # --- bootstrap intervals ----------------------------------------------------------------------
 

@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -17,6 +16,7 @@ import pytest
 from data_tools.sweep.grid import Cell, RunKey
 from data_tools.sweep.work import RunTask, cached_log_is_intact, digest_path, ensure_log
 from tests.test_sweep import SMALL_SCENARIO, TINY, write
+from tests.waiting import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 PATIENCE_S = 120.0  # a guard against hanging, not a measure: every wait below ends on an event
@@ -49,15 +49,6 @@ def alive(pids: set[int]) -> set[int]:
     return running
 
 
-def wait_for(condition, what: str):
-    deadline = time.monotonic() + PATIENCE_S
-    while not (result := condition()):
-        if time.monotonic() > deadline:
-            pytest.fail(f"gave up waiting for {what}")
-        time.sleep(0.05)
-    return result
-
-
 def sweep_command(config: Path, out: Path, quiet: bool = True) -> list[str]:
     """The sweep as a user starts it; `quiet`: errors only (-q), no result lines either."""
     return [sys.executable, "-m", "pipeline.cli", "sweep", str(config), "--out", str(out),
@@ -76,7 +67,7 @@ def start_sweep(folder: Path) -> tuple[subprocess.Popen, Path]:
         stderr=subprocess.PIPE,
         text=True,
     )
-    wait_for(lambda: finished(out), "the first run")
+    wait_until(lambda: finished(out), "the first run", PATIENCE_S)
     return sweep, out
 
 
@@ -91,7 +82,7 @@ def finished(out: Path) -> set[Path]:
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGKILL], ids=["SIGTERM", "SIGKILL"])
 def test_a_stopped_sweep_takes_its_workers_with_it_and_resumes(tmp_path, how):
     sweep, out = start_sweep(tmp_path)
-    workers = wait_for(lambda: alive(children(sweep.pid)), "the workers")
+    workers = wait_until(lambda: alive(children(sweep.pid)), "the workers", PATIENCE_S)
     sweep.send_signal(how)
     _, err = sweep.communicate(timeout=PATIENCE_S)  # stderr closes once every worker is gone
     if how == signal.SIGTERM:  # as Ctrl-C, in one line, with the status a shell gives SIGTERM
@@ -100,7 +91,7 @@ def test_a_stopped_sweep_takes_its_workers_with_it_and_resumes(tmp_path, how):
     else:
         assert sweep.returncode == -signal.SIGKILL
         assert "leaked semaphore" not in err and err == "", err  # the resource tracker's
-    wait_for(lambda: not alive(workers), "the workers to die")
+    wait_until(lambda: not alive(workers), "the workers to die", PATIENCE_S)
     kept = finished(out)
     assert 1 <= len(kept) < 9
     # The next sweep cleans what the stopped one left, keeps its finished runs and does the rest.
@@ -153,7 +144,7 @@ def test_a_cached_log_that_changed_is_made_again(tmp_path, caplog):
 def test_a_worker_killed_as_by_the_out_of_memory_killer_ends_the_sweep_in_one_line(tmp_path):
     """Issue 53: a worker SIGKILLed (as the OOM killer does) gave a 20-line traceback."""
     sweep, out = start_sweep(tmp_path)
-    workers = wait_for(lambda: alive(children(sweep.pid)), "the workers")
+    workers = wait_until(lambda: alive(children(sweep.pid)), "the workers", PATIENCE_S)
     spawned = [p for p in workers if b"spawn_main" in Path(f"/proc/{p}/cmdline").read_bytes()]
     os.kill(spawned[0], signal.SIGKILL)
     _, err = sweep.communicate(timeout=PATIENCE_S)
@@ -162,5 +153,7 @@ def test_a_worker_killed_as_by_the_out_of_memory_killer_ends_the_sweep_in_one_li
         "mmslam sweep: error: a worker process died abruptly (killed, out of memory, or a "
         "crash); the runs finished so far are kept: run the sweep again to resume"
     ]
-    wait_for(lambda: not alive(workers), "the other worker and the resource tracker to die")
+    wait_until(
+        lambda: not alive(workers), "the other worker and the resource tracker to die", PATIENCE_S
+    )
     assert 1 <= len(finished(out)) < 9

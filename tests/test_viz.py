@@ -12,7 +12,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -53,6 +52,7 @@ from tests.recordings import (
     unseen_entities,
 )
 from tests.synthetic import KIDNAP_POSE, Scene, kidnap_scene, square_loop, write_scene
+from tests.waiting import wait_until
 
 rerun_chunk = pytest.importorskip("rerun.chunk")
 REPO = Path(__file__).resolve().parents[1]
@@ -676,17 +676,6 @@ def test_the_command_line_leaves_nothing_behind_on_bad_input(tmp_path):
     assert done.returncode == 2, done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
-
-
-def wait_until(condition, what: str, timeout_s: float = 60.0):
-    """The first true value of `condition()`, asked every 50 ms; the test fails if none comes
-    within `timeout_s` (a deadline for a machine under load, not a time the test measures)."""
-    deadline = time.monotonic() + timeout_s
-    while not (value := condition()):
-        if time.monotonic() > deadline:
-            pytest.fail(f"gave up after {timeout_s:.0f} s waiting for {what}")
-        time.sleep(0.05)
-    return value
 
 
 def accepting(port: int) -> bool:

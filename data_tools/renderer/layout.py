@@ -66,15 +66,7 @@ def motion_from_config(config: RendererConfig) -> Motion:
     return Motion(
         half_length=config.scene.block_length / 2 - drive.lane_offset,
         half_width=config.scene.block_width / 2 - drive.lane_offset,
-        corner_radius=drive.corner_radius,
-        laps=drive.laps,
-        speed=drive.speed,
-        max_yaw_rate=drive.max_yaw_rate,
-        max_acceleration=drive.max_acceleration,
-        height=drive.camera_height,
-        weave_amplitude=drive.weave_amplitude,
-        weave_wavelength=drive.weave_wavelength,
-        sway_amplitude=drive.sway_amplitude,
+        drive=drive,
     )
 
 

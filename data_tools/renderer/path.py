@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from data_tools.renderer.config import PathConfig
 from data_tools.renderer.geometry import make_transform, rotation_from_yaw_pitch_roll
 
 
@@ -94,29 +95,23 @@ def speed_profile(
 
 @dataclass(frozen=True)
 class Motion:
-    """How the vehicle drives the loop (see configs/renderer/*.toml for the meaning)."""
+    """How the vehicle drives the loop: the half sizes of the loop's centre line, and the
+    drive's own settings (`PathConfig`; see configs/renderer/*.toml for their meaning)."""
 
     half_length: float
     half_width: float
-    corner_radius: float
-    laps: float
-    speed: float
-    max_yaw_rate: float
-    max_acceleration: float
-    height: float
-    weave_amplitude: float
-    weave_wavelength: float
-    sway_amplitude: float
+    drive: PathConfig
 
 
 def body_poses(motion: Motion, frame_rate: float) -> np.ndarray:
     """World-from-body poses (N, 4, 4), one a frame at `frame_rate`, along the whole drive."""
-    segments = rounded_rectangle(motion.half_length, motion.half_width, motion.corner_radius)
-    total = motion.laps * sum(seg.length for seg in segments)
+    drive = motion.drive
+    segments = rounded_rectangle(motion.half_length, motion.half_width, drive.corner_radius)
+    total = drive.laps * sum(seg.length for seg in segments)
     step = 0.05
     s = np.arange(0.0, total + step, step)
     _, _, curvature = evaluate(segments, s)
-    v = speed_profile(curvature, step, motion.speed, motion.max_yaw_rate, motion.max_acceleration)
+    v = speed_profile(curvature, step, drive.speed, drive.max_yaw_rate, drive.max_acceleration)
     elapsed = np.concatenate([[0.0], np.cumsum(2 * step / (v[1:] + v[:-1]))])
     frame_times = np.arange(0.0, elapsed[-1], 1.0 / frame_rate)
     return poses_at(segments, motion, np.interp(frame_times, elapsed, s))
@@ -126,17 +121,18 @@ def poses_at(segments: list[Segment], motion: Motion, s: np.ndarray) -> np.ndarr
     """Poses at arc lengths `s`: the centre line shifted sideways by a slow weave, heading
     along the shifted line, with small pitch and roll (a vehicle's sway) and constant height."""
     position, heading, curvature = evaluate(segments, s)
-    phase = 2 * math.pi * s / motion.weave_wavelength
-    offset = motion.weave_amplitude * np.sin(phase)
-    offset_rate = motion.weave_amplitude * 2 * math.pi / motion.weave_wavelength * np.cos(phase)
+    drive = motion.drive
+    phase = 2 * math.pi * s / drive.weave_wavelength
+    offset = drive.weave_amplitude * np.sin(phase)
+    offset_rate = drive.weave_amplitude * 2 * math.pi / drive.weave_wavelength * np.cos(phase)
     left = np.stack([-np.sin(heading), np.cos(heading)], axis=1)
     position = position + offset[:, None] * left
     # d/ds of (centre + offset * left) = tangent * (1 - curvature * offset) + offset' * left.
     yaw = heading + np.arctan2(offset_rate, 1.0 - curvature * offset)
-    pitch = motion.sway_amplitude * np.sin(2 * math.pi * s / 7.3)
-    roll = motion.sway_amplitude * np.sin(2 * math.pi * s / 11.9)
+    pitch = drive.sway_amplitude * np.sin(2 * math.pi * s / 7.3)
+    roll = drive.sway_amplitude * np.sin(2 * math.pi * s / 11.9)
     poses = np.empty((s.size, 4, 4))
     for i in range(s.size):
         rotation = rotation_from_yaw_pitch_roll(yaw[i], pitch[i], roll[i])
-        poses[i] = make_transform(rotation, [position[i, 0], position[i, 1], motion.height])
+        poses[i] = make_transform(rotation, [position[i, 0], position[i, 1], drive.camera_height])
     return poses

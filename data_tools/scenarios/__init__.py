@@ -8,18 +8,20 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from data_tools.scenarios import city_grid, indoor_tags, kitti05_cars, planar_park
-from data_tools.scenarios.common import (
-    SimulationOptions,
+from data_tools.scenarios.common import SimulationOptions
+from data_tools.scenarios.config import MAX_NOISE_SCALE, CheckedConfig, load_checked
+from data_tools.scenarios.writing import (
     SimulationSummary,
     restated,
+    source_text,
     summarise,
     write_log,
 )
-from data_tools.scenarios.config import MAX_NOISE_SCALE
 from data_tools.stated_noise import StatedNoise
 from pipeline.errors import InputError
 
@@ -30,8 +32,29 @@ _MODULES = {
     planar_park.NAME: planar_park,
 }
 SCENARIOS: tuple[str, ...] = tuple(_MODULES)
+# Each scenario's config: the defaults in configs/scenarios/<name>.toml read as these.
+_CONFIGS: dict[str, type[CheckedConfig]] = {
+    indoor_tags.NAME: indoor_tags.IndoorTagsConfig,
+    kitti05_cars.NAME: kitti05_cars.Kitti05CarsConfig,
+    city_grid.NAME: city_grid.CityGridConfig,
+    planar_park.NAME: planar_park.PlanarParkConfig,
+}
 
-__all__ = ["MAX_NOISE_SCALE", "SCENARIOS", "SimulationOptions", "SimulationSummary", "simulate"]
+
+def load_config(scenario: str, path: Path | None = None) -> Any:
+    """The config of `scenario`: its defaults, with the keys of `path` (if given) put over
+    them, checked."""
+    return load_checked(_CONFIGS[scenario], scenario, path)
+
+
+__all__ = [
+    "MAX_NOISE_SCALE",
+    "SCENARIOS",
+    "SimulationOptions",
+    "SimulationSummary",
+    "load_config",
+    "simulate",
+]
 
 
 def noise_truth(
@@ -53,7 +76,7 @@ def noise_truth(
     from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
 
     stated = stated or StatedNoise()
-    config = _MODULES[scenario].load_config(config_path)
+    config = load_config(scenario, config_path)
     calibrated, true = odometry_covariances(config.odometry, odom_noise_scale)
     written = np.diag(true if true_covariance else calibrated) * np.array(stated.odometry)
     odometry = np.diag(true) / written
@@ -101,7 +124,7 @@ def simulate(
     if not 0.0 <= alpha <= 1.0:
         raise InputError(f"--misclassification must be within 0..1, got {alpha:g}")
     module = _MODULES[scenario]
-    config = module.load_config(config_path)
+    config = load_config(scenario, config_path)
     if odom_noise_scale is None:
         odom_noise_scale = config.odometry.default_noise_scale
     scale = _number("--odom-noise-scale", odom_noise_scale)
@@ -122,5 +145,5 @@ def simulate(
     )
     run = restated(module.simulate(config, options, config_path), options.stated)
     out = Path(out)
-    counts = write_log(out, run, foxglove)
+    counts = write_log(out, run, source_text(scenario, options, config_path), foxglove)
     return summarise(scenario, out, options, run, counts)

@@ -16,7 +16,6 @@ depth does).
 from __future__ import annotations
 
 import itertools
-import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -26,19 +25,17 @@ from typing import Annotated
 import numpy as np
 from scipy.spatial import cKDTree
 
-from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
     blocks,
-    floats,
-    frames_by_bearing,
-    metadata_for,
+    detection_frames,
+    first_pose_frame,
+    lines_inside,
     noisy_odometry,
     pieces,
-    source_text,
+    reported_classes,
     truth_landmarks,
-    vehicle_class_names,
     within_reach,
 )
 from data_tools.scenarios.config import (
@@ -50,19 +47,14 @@ from data_tools.scenarios.config import (
     Probability,
     Sigma,
     WorldSeed,
+    require,
 )
 from data_tools.scenarios.geometry import bearing_elevation_range
-from data_tools.scenarios.noise import (
-    OdometryNoiseConfig,
-    confusion_matrix,
-    random_streams,
-    sample_reported_classes,
-)
+from data_tools.scenarios.noise import OdometryNoiseConfig, random_streams
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
+from data_tools.scenarios.vehicles import VehicleType, type_shares, vehicle_class_names
 from pipeline.log import Detection
-from pipeline.settings import positive, within
-
-logger = logging.getLogger(__name__)
+from pipeline.settings import within
 
 NAME = "city-grid"
 
@@ -78,12 +70,6 @@ class GridConfig:
     streets_y: Annotated[int, within(2, 100)]
     block_x_m: Length
     block_y_m: Length
-
-
-@dataclass(frozen=True)
-class VehicleType:
-    name: str
-    frequency: Annotated[float, positive(1.0)]
 
 
 @dataclass(frozen=True)
@@ -122,37 +108,30 @@ class CityGridConfig:
     sensor: SensorConfig
     odometry: OdometryNoiseConfig
 
-
-def load_config(path: Path | None = None) -> CityGridConfig:
-    return cfg.load_checked(CityGridConfig, NAME, path, _check)
-
-
-def _check(c: CityGridConfig, path: Path) -> None:
-    """What the keys' own ranges cannot say."""
-    req = cfg.require
-    g, p, s = c.grid, c.parking, c.sensor
-    street_half = p.kerb_offset_m + PAVEMENT_M
-    req(
-        min(g.block_x_m, g.block_y_m) > 2 * max(street_half, p.corner_clearance_m),
-        path,
-        "grid blocks are too small for the streets and their corner clearance",
-    )
-    check_route(c.route, path, req)
-    req(len(c.vehicles) >= 1, path, "at least one [[vehicles]] entry")
-    slots = parking_slots(g, p)
-    req(
-        slots <= MAX_LANDMARKS,
-        path,
-        f"grid.streets_x, streets_y, block_x_m, block_y_m and parking.slot_spacing_m "
-        f"({p.slot_spacing_m:g} m) make {slots:.3g} parking slots; at most {MAX_LANDMARKS}",
-    )
-    req(
-        p.slot_jitter_m < p.slot_spacing_m / 2,
-        path,
-        f"'parking.slot_jitter_m' ({p.slot_jitter_m:g} m) must be < slot_spacing_m / 2 "
-        f"({p.slot_spacing_m / 2:g} m)",
-    )
-    req(s.min_range_m < s.max_range_m, path, "sensor ranges: min_range_m < max_range_m")
+    def check(self, path: Path | str) -> None:
+        g, p, s = self.grid, self.parking, self.sensor
+        street_half = p.kerb_offset_m + PAVEMENT_M
+        require(
+            min(g.block_x_m, g.block_y_m) > 2 * max(street_half, p.corner_clearance_m),
+            path,
+            "grid blocks are too small for the streets and their corner clearance",
+        )
+        check_route(self.route, path, require)
+        require(len(self.vehicles) >= 1, path, "at least one [[vehicles]] entry")
+        slots = parking_slots(g, p)
+        require(
+            slots <= MAX_LANDMARKS,
+            path,
+            f"grid.streets_x, streets_y, block_x_m, block_y_m and parking.slot_spacing_m "
+            f"({p.slot_spacing_m:g} m) make {slots:.3g} parking slots; at most {MAX_LANDMARKS}",
+        )
+        require(
+            p.slot_jitter_m < p.slot_spacing_m / 2,
+            path,
+            f"'parking.slot_jitter_m' ({p.slot_jitter_m:g} m) must be < slot_spacing_m / 2 "
+            f"({p.slot_spacing_m / 2:g} m)",
+        )
+        require(s.min_range_m < s.max_range_m, path, "sensor ranges: min_range_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------
@@ -220,7 +199,7 @@ def park_vehicles(
             s = along[taken] + jitter[taken]
             centres.append(start + s[:, None] * direction + side * parking.kerb_offset_m * left)
     xy = np.concatenate(centres)
-    types = rng.choice(len(shares), size=len(xy), p=shares / shares.sum())
+    types = rng.choice(len(shares), size=len(xy), p=shares)
     heights = np.full((len(xy), 1), parking.centre_height_m)
     return np.concatenate([xy, heights], axis=1), types
 
@@ -232,24 +211,12 @@ def build_world(config: CityGridConfig) -> CityWorld:
     vertices = junction_route(xs, ys, 1.05 * config.route.length_m + 100.0, rng)
     times_ns, poses = drive(vertices, config.route, NAME)
     poses[:, 2, 3] = config.sensor.camera_height_m
-    shares = np.array([v.frequency for v in config.vehicles])
-    vehicles, types = park_vehicles(xs, ys, config.parking, shares, rng)
+    vehicles, types = park_vehicles(xs, ys, config.parking, type_shares(config.vehicles), rng)
     buildings = buildings_of(xs, ys, config.parking.kerb_offset_m + PAVEMENT_M)
     return CityWorld(times_ns, poses, vehicles, types, buildings)
 
 
 # --- what the camera sees -------------------------------------------------------------------
-
-
-def inside_any(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
-    """(..., 2) points inside any of the rectangles."""
-    p = points[..., None, :]
-    return (
-        (p[..., 0] >= rectangles[:, 0])
-        & (p[..., 0] <= rectangles[:, 2])
-        & (p[..., 1] >= rectangles[:, 1])
-        & (p[..., 1] <= rectangles[:, 3])
-    ).any(axis=-1)
 
 
 def vehicles_in_view(
@@ -274,19 +241,10 @@ def vehicles_in_view(
         )
         pose_index, k = np.nonzero(in_view)
         vehicle = near[k]
-        clear = clear_lines(poses[pose_index, :2, 3], world.vehicles[vehicle, :2], world.buildings)
+        start, end = poses[pose_index, :2, 3], world.vehicles[vehicle, :2]
+        clear = ~lines_inside(start, end, LINE_OF_SIGHT_SAMPLES, world.buildings, every=False)
         pose_index, vehicle, k = pose_index[clear], vehicle[clear], k[clear]
         yield block, (pose_index + block.start, vehicle, local[pose_index, k])
-
-
-def clear_lines(start: np.ndarray, end: np.ndarray, buildings: np.ndarray) -> np.ndarray:
-    """(n,) whether the (n, 2) lines from `start` to `end` pass no building."""
-    clear = np.empty(len(start), dtype=bool)
-    for rows in blocks(len(start), len(LINE_OF_SIGHT_SAMPLES) * len(buildings)):
-        a, b = start[rows], end[rows]
-        samples = a[:, None] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (b - a)[:, None]
-        clear[rows] = ~inside_any(samples, buildings).any(axis=1)
-    return clear
 
 
 def detected(local: np.ndarray, sensor: SensorConfig, rng: np.random.Generator) -> np.ndarray:
@@ -316,8 +274,7 @@ def false_alarms(
     count = rng.poisson(s.false_alarms_per_frame, num_frames)
     pose_index = np.repeat(np.arange(num_frames), count)
     n = len(pose_index)
-    shares = np.array([v.frequency for v in config.vehicles])
-    kinds = rng.choice(len(shares), size=n, p=shares / shares.sum())
+    kinds = rng.choice(len(config.vehicles), size=n, p=type_shares(config.vehicles))
     half_fov = math.radians(s.horizontal_fov_deg) / 2
     bearing = rng.uniform(-half_fov, half_fov, n)
     distance = rng.uniform(s.min_range_m, s.max_range_m, n)
@@ -334,15 +291,12 @@ def false_alarms(
 def simulate(
     config: CityGridConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
+    """The city's run: the world of `config` driven once, the detector's misses, noise and
+    false alarms drawn from `options.seed`."""
     world = build_world(config)
     streams = random_streams(options.seed)
     num_classes = options.num_classes
-    origin = np.linalg.inv(world.poses[0])
-    poses = origin @ world.poses
-    vehicles = world.vehicles @ origin[:3, :3].T + origin[:3, 3]
-
-    odometry, covariance = noisy_odometry(config.odometry, options, poses, streams["odometry"])
-    confusion = confusion_matrix(num_classes, options.misclassification)
+    poses, vehicles = first_pose_frame(world.poses, world.vehicles)
 
     def detections() -> Iterator[list[Detection]]:
         """Each pose's detections, made a piece of the run at a time."""
@@ -364,34 +318,20 @@ def simulate(
             sigmas = measurement_sigmas(config.sensor, true_ber[:, 2])
             measured = true_ber + sigmas * streams["measurement"].standard_normal(sigmas.shape)
             measured[:, 2] = np.maximum(measured[:, 2], 0.1)  # a range is positive
+            covariances = np.zeros((len(sigmas), 3, 3))
+            covariances[:, [0, 1, 2], [0, 1, 2]] = sigmas**2
 
-            reported = sample_reported_classes(streams["classes"], kinds % num_classes, confusion)
+            reported = reported_classes(options, kinds, streams["classes"])
+            yield from detection_frames(
+                piece, pose_index, measured, covariances, reported, truth, "bbox"
+            )
 
-            found = [
-                Detection(
-                    class_id=int(reported[k]),
-                    score=1.0,
-                    bearing=float(measured[k, 0]),
-                    elevation=float(measured[k, 1]),
-                    range=float(measured[k, 2]),
-                    covariance=floats(np.diag(sigmas[k] ** 2)),
-                    source="bbox",
-                    truth_landmark_id=int(truth[k]),
-                )
-                for k in range(len(pose_index))
-            ]
-            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
-
-    landmarks = truth_landmarks(vehicles, world.vehicle_types % num_classes)
-    names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,
-        odometry=odometry,
-        odometry_covariance=covariance,
+        odometry=noisy_odometry(config.odometry, options, poses, streams["odometry"]),
         detections=detections(),
-        landmarks=landmarks,
-        metadata=metadata_for(
-            num_classes, confusion, names, source_text(NAME, options, config_path)
-        ),
+        landmarks=truth_landmarks(vehicles, world.vehicle_types % num_classes),
+        confusion=options.confusion,
+        class_names=vehicle_class_names(config.vehicles, num_classes),
     )

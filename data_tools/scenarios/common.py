@@ -1,4 +1,4 @@
-"""What every scenario shares: the run options, the simulated run, and writing it as a log.
+"""What every scenario shares: the run options, the simulated run, and the making of it.
 
 A run's memory is bounded whatever its length: landmark-keyframe pairs are tested for
 visibility in blocks (`blocks`), and the detections are made piece by piece as the log is
@@ -9,33 +9,30 @@ run's would be, so a run of one piece (every shipped configuration) draws as it 
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
-import logging
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from data_tools.scenarios.geometry import path_length, quaternion_from_rotation, relative_poses
-from data_tools.scenarios.noise import OdometryNoiseConfig, corrupt_odometry, odometry_covariances
-from data_tools.stated_noise import StatedNoise, restate_detection, restated_covariance
-from pipeline.foxglove.log_topics import foxglove_mirror
+from data_tools.scenarios.geometry import inside_any, relative_poses
+from data_tools.scenarios.noise import (
+    OdometryNoiseConfig,
+    confusion_matrix,
+    corrupt_odometry,
+    odometry_covariances,
+    sample_reported_classes,
+)
+from data_tools.stated_noise import StatedNoise
 from pipeline.log import (
     Detection,
-    Detections,
     GroundTruthLandmark,
-    GroundTruthLandmarks,
-    GroundTruthPose,
     LogMetadata,
-    LogWriter,
-    Odometry,
+    RelativePose,
     StereoCalibration,
 )
-
-logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -49,6 +46,20 @@ class SimulationOptions:
     true_covariance: bool
     # what the log states over the covariance it would state (the truth's or the calibrated)
     stated: StatedNoise = field(default_factory=StatedNoise)
+
+    @property
+    def confusion(self) -> np.ndarray:
+        """The detector's confusion matrix: each of `num_classes` classes reported as another
+        with probability `misclassification` (`noise.confusion_matrix`)."""
+        return confusion_matrix(self.num_classes, self.misclassification)
+
+
+def reported_classes(
+    options: SimulationOptions, kinds: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """The classes a detector reports for objects of `kinds` (kind k is class k mod C), each
+    drawn from `rng` through the options' confusion matrix."""
+    return sample_reported_classes(rng, kinds % options.num_classes, options.confusion)
 
 
 # Array elements (landmark-keyframe pairs, line-of-sight samples against walls) computed at once.
@@ -71,6 +82,25 @@ def within_reach(landmarks: cKDTree, positions: np.ndarray, reach: float) -> np.
     whatever the heights. The rest need not be tested."""
     found = landmarks.query_ball_point(positions[:, :2], reach * (1 + 1e-9) + 1e-9)
     return np.unique(np.fromiter(itertools.chain.from_iterable(found), dtype=np.intp))
+
+
+def lines_inside(
+    start: np.ndarray,
+    end: np.ndarray,
+    fractions: np.ndarray,
+    rectangles: np.ndarray,
+    *,
+    every: bool,
+) -> np.ndarray:
+    """(n,) whether the (n, 2) lines from `start` to `end`, sampled at `fractions` of the way,
+    have every sample (`every`), or any sample, inside one of the (K, 4) `rectangles`: a line
+    of sight that stays on a floor, or one that meets a building. Tested in blocks."""
+    result = np.empty(len(start), dtype=bool)
+    for rows in blocks(len(start), len(fractions) * len(rectangles)):
+        a, b = start[rows], end[rows]
+        inside = inside_any(a[:, None] + fractions[None, :, None] * (b - a)[:, None], rectangles)
+        result[rows] = inside.all(axis=1) if every else inside.any(axis=1)
+    return result
 
 
 Candidates = tuple[np.ndarray, ...]  # arrays of one row a candidate; the first, its pose index
@@ -104,6 +134,15 @@ def pieces(
         yield slice(start, end), _joined(held)
 
 
+@dataclass(frozen=True)
+class MeasuredOdometry:
+    """The odometry as a log states it: each step's measured motion, and the covariance stated
+    for it."""
+
+    steps: np.ndarray  # (N-1, 4, 4) measured motion of pose k+1 in the frame of pose k
+    covariance: np.ndarray  # (6, 6) stated for every step, or (N-1, 6, 6) one a step
+
+
 @dataclass
 class SimulatedRun:
     """A simulated run, ready to be written: truth, odometry, and the detections of each pose
@@ -111,67 +150,22 @@ class SimulatedRun:
 
     times_ns: np.ndarray  # (N,) int
     poses: np.ndarray  # (N, 4, 4) true body poses, pose 0 at identity
-    odometry: np.ndarray  # (N-1, 4, 4) measured motion of pose k+1 in the frame of pose k
-    odometry_covariance: np.ndarray  # (6, 6), as written to the log
+    odometry: MeasuredOdometry
     detections: Iterable[list[Detection]]  # per pose
     landmarks: list[GroundTruthLandmark]
-    metadata: LogMetadata
+    confusion: np.ndarray  # (C, C) the detector's, as the log states it
+    class_names: list[str]  # C of them
     calibration: StereoCalibration | None = None
+    ground_truth: bool = True  # False: the log holds no truth (poses, landmarks), as a robot's
 
-
-@dataclass
-class DetectionCounts:
-    """What a run's detections held, counted as they were written."""
-
-    detections: int = 0
-    false_positives: int = 0
-    landmarks_seen: set[int] = field(default_factory=set)
-
-    def add(self, frame: Sequence[Detection]) -> None:
-        self.detections += len(frame)
-        for detection in frame:
-            if detection.truth_landmark_id == -1:
-                self.false_positives += 1
-            else:
-                self.landmarks_seen.add(detection.truth_landmark_id)
-
-
-@dataclass(frozen=True)
-class SimulationSummary:
-    """What `simulate` wrote, in figures."""
-
-    scenario: str
-    out: Path
-    seed: int
-    num_poses: int
-    num_detections: int
-    num_false_positives: int
-    num_landmarks: int
-    num_landmarks_seen: int
-    num_classes: int
-    path_length_m: float
-    duration_s: float
-    odom_noise_scale: float
-    misclassification: float
-    true_covariance: bool
-
-    def summary_line(self) -> str:
-        return (
-            f"{self.scenario}: {self.num_poses} poses over {self.path_length_m:.1f} m "
-            f"({self.duration_s:.0f} s), {self.num_detections} detections "
-            f"({self.num_false_positives} false) of {self.num_landmarks_seen}/"
-            f"{self.num_landmarks} landmarks, {self.num_classes} classes -> {self.out}"
+    def metadata(self, source: str) -> LogMetadata:
+        """The log's metadata record: the run's classes, and `source`, what made it."""
+        return LogMetadata(
+            num_classes=len(self.class_names),
+            confusion_matrix=tuple(floats(row) for row in self.confusion),
+            class_names=tuple(self.class_names),
+            source=source,
         )
-
-
-def vehicle_class_names(vehicles: Sequence, num_classes: int) -> list[str]:
-    """Vehicle type k (anything with a `name`) is class k mod C; a class's name lists the
-    types it holds."""
-    names = []
-    for c in range(num_classes):
-        members = [v.name for k, v in enumerate(vehicles) if k % num_classes == c]
-        names.append("+".join(members) if members else f"class-{c}")
-    return names
 
 
 def floats(values: np.ndarray) -> tuple[float, ...]:
@@ -184,23 +178,61 @@ def noisy_odometry(
     options: SimulationOptions,
     poses: np.ndarray,
     rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> MeasuredOdometry:
     """The odometry between consecutive `poses` with the noise `config` (scaled as `options`
     say) drawn from `rng`, and the covariance the log states for it: the calibrated model's, or
     with `true_covariance` that of the noise drawn."""
     calibrated, true = odometry_covariances(config, options.odom_noise_scale)
-    odometry = corrupt_odometry(rng, relative_poses(poses), true)
-    return odometry, true if options.true_covariance else calibrated
+    steps = corrupt_odometry(rng, relative_poses(poses), true)
+    return MeasuredOdometry(steps, true if options.true_covariance else calibrated)
 
 
-def frames_by_bearing(
-    piece: slice, pose_index: np.ndarray, bearing: np.ndarray, detections: Sequence[Detection]
+def first_pose_frame(poses: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 4, 4) `poses` and (M, 3) `points` in the frame of the first pose, where a log's
+    trajectory starts."""
+    origin = np.linalg.inv(poses[0])
+    return origin @ poses, points @ origin[:3, :3].T + origin[:3, 3]
+
+
+def detection_frames(
+    piece: slice,
+    pose_index: np.ndarray,
+    measured: np.ndarray,
+    covariance: np.ndarray,
+    class_id: np.ndarray,
+    truth: np.ndarray,
+    source: Literal["apriltag", "bbox"],
+    *,
+    score: np.ndarray | None = None,
+    bbox: np.ndarray | None = None,
+    relative_pose: Sequence[RelativePose] | None = None,
 ) -> list[list[Detection]]:
-    """A piece's `detections` keyframe by keyframe (candidate k at `pose_index[k]`), each
-    keyframe's left to right by `bearing`, as in an image or as a scanner sweeps, so that
-    their order gives no hint of the truth."""
+    """A piece's detections keyframe by keyframe, each keyframe's left to right by bearing, as
+    in an image or as a scanner sweeps, so that their order gives no hint of the truth.
+
+    Detection k, made at keyframe `pose_index[k]`, is `measured[k]` (bearing, elevation,
+    range) with `covariance` (one (3, 3) for all, or `covariance[k]`), reported as `class_id[k]`
+    and truly landmark `truth[k]` (-1: a false alarm); scored 1 unless `score` says, with
+    `bbox[k]` and `relative_pose[k]` where given.
+    """
+    shared = floats(covariance) if covariance.ndim == 2 else None
+    detections = [
+        Detection(
+            class_id=int(class_id[k]),
+            score=1.0 if score is None else float(score[k]),
+            bearing=float(measured[k, 0]),
+            elevation=float(measured[k, 1]),
+            range=float(measured[k, 2]),
+            covariance=floats(covariance[k]) if shared is None else shared,  # type: ignore[arg-type]
+            source=source,
+            bbox=None if bbox is None else floats(bbox[k]),  # type: ignore[arg-type]
+            relative_pose=None if relative_pose is None else relative_pose[k],
+            truth_landmark_id=int(truth[k]),
+        )
+        for k in range(len(pose_index))
+    ]
     frames: list[list[Detection]] = [[] for _ in range(piece.stop - piece.start)]
-    for k in np.lexsort((-bearing, pose_index)):
+    for k in np.lexsort((-measured[:, 0], pose_index)):
         frames[pose_index[k] - piece.start].append(detections[k])
     return frames
 
@@ -211,112 +243,3 @@ def truth_landmarks(positions: np.ndarray, classes: Iterable[int]) -> list[Groun
         GroundTruthLandmark(id=m, class_id=int(c), position=floats(p))  # type: ignore[arg-type]
         for m, (p, c) in enumerate(zip(positions, classes, strict=True))
     ]
-
-
-def metadata_for(
-    num_classes: int, confusion: np.ndarray, class_names: list[str], source: str
-) -> LogMetadata:
-    return LogMetadata(
-        num_classes=num_classes,
-        confusion_matrix=tuple(floats(row) for row in confusion),
-        class_names=tuple(class_names),
-        source=source,
-    )
-
-
-def source_text(scenario: str, options: SimulationOptions, config: Path | None) -> str:
-    text = (
-        f"mmslam simulate {scenario} --seed {options.seed} --odom-noise-scale "
-        f"{options.odom_noise_scale:g} --misclassification {options.misclassification:g} "
-        f"--num-classes {options.num_classes}"
-    )
-    if options.true_covariance:
-        text += " --true-covariance"
-    if not options.stated.is_identity:
-        text += " " + options.stated.describe()
-    if config is not None:
-        text += f" --config {config}"
-    return text
-
-
-def restated(run: SimulatedRun, stated: StatedNoise) -> SimulatedRun:
-    """`run` with its stated covariances scaled as `stated` says (`data_tools.stated_noise`)."""
-    if stated.is_identity:
-        return run
-    covariance = restated_covariance(tuple(np.ravel(run.odometry_covariance)), stated.odometry)
-    return dataclasses.replace(
-        run,
-        odometry_covariance=np.reshape(covariance, (6, 6)),
-        detections=([restate_detection(d, stated) for d in frame] for frame in run.detections),
-    )
-
-
-def write_log(path: Path, run: SimulatedRun, foxglove: bool = True) -> DetectionCounts:
-    """Write `run` as a contract-v1 log, messages in time order; return what its detections
-    held.
-
-    At the first stamp: ground-truth landmarks (and calibration); then for every pose k, at its
-    stamp: the odometry that reaches it (k-1 to k), its ground-truth pose, its detections. A
-    detection message is written for every pose, empty or not, so keyframes are explicit.
-    """
-    n = len(run.poses)
-    quaternions = quaternion_from_rotation(run.poses[:, :3, :3])
-    odom_quaternions = quaternion_from_rotation(run.odometry[:, :3, :3])
-    covariance = floats(run.odometry_covariance)
-    stamps = [int(t) for t in run.times_ns]
-    counts = DetectionCounts()
-    frames = iter(run.detections)
-    mirror = foxglove_mirror if foxglove else None
-    with LogWriter(path, run.metadata, mirror) as writer:
-        writer.write(GroundTruthLandmarks(stamp_ns=stamps[0], landmarks=tuple(run.landmarks)))
-        if run.calibration is not None:
-            writer.write(run.calibration)
-        for k, frame in zip(range(n), frames, strict=True):
-            if k > 0:
-                writer.write(
-                    Odometry(
-                        stamp_ns=stamps[k],
-                        from_index=k - 1,
-                        to_index=k,
-                        translation=floats(run.odometry[k - 1, :3, 3]),  # type: ignore[arg-type]
-                        rotation=floats(odom_quaternions[k - 1]),  # type: ignore[arg-type]
-                        covariance=covariance,
-                    )
-                )
-            writer.write(
-                GroundTruthPose(
-                    stamp_ns=stamps[k],
-                    pose_index=k,
-                    translation=floats(run.poses[k, :3, 3]),  # type: ignore[arg-type]
-                    rotation=floats(quaternions[k]),  # type: ignore[arg-type]
-                )
-            )
-            writer.write(Detections(stamp_ns=stamps[k], pose_index=k, detections=tuple(frame)))
-            counts.add(frame)
-    logger.info("wrote %s: %d poses, %d detections", path, n, counts.detections)
-    return counts
-
-
-def summarise(
-    scenario: str,
-    out: Path,
-    options: SimulationOptions,
-    run: SimulatedRun,
-    counts: DetectionCounts,
-) -> SimulationSummary:
-    return SimulationSummary(
-        scenario=scenario,
-        out=out,
-        seed=options.seed,
-        num_poses=len(run.poses),
-        num_detections=counts.detections,
-        num_false_positives=counts.false_positives,
-        num_landmarks=len(run.landmarks),
-        num_landmarks_seen=len(counts.landmarks_seen),
-        num_classes=options.num_classes,
-        path_length_m=path_length(run.poses[:, :3, 3]),
-        duration_s=float(run.times_ns[-1] - run.times_ns[0]) * 1e-9,
-        odom_noise_scale=options.odom_noise_scale,
-        misclassification=options.misclassification,
-        true_covariance=options.true_covariance,
-    )

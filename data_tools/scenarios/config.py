@@ -4,14 +4,12 @@ their ranges with the kinds of value below."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, TypeVar
+from typing import Annotated, Protocol, TypeVar
 
 from pipeline import settings
 from pipeline.settings import UNIT, positive, read_toml, require, within
 
-T = TypeVar("T")
 # Times the paper's added odometry noise, at most: the paper sweeps 0..10; far beyond, the
 # drawn steps overflow.
 MAX_NOISE_SCALE = 100.0
@@ -44,7 +42,7 @@ __all__ = [
     "Spread",
     "WorldSeed",
     "default_config_path",
-    "load",
+    "load_checked",
     "read_toml",
     "require",
 ]
@@ -55,16 +53,16 @@ def default_config_path(scenario: str) -> Path:
     return settings.config_path(f"scenarios/{scenario}.toml")
 
 
-def load(cls: type[T], scenario: str, override: Path | None = None) -> T:
-    """The defaults of `scenario` as `cls`, with the keys of `override` (if given) put over them."""
-    return settings.load(cls, default_config_path(scenario), override)
+class CheckedConfig(Protocol):
+    def check(self, path: Path | str) -> None:
+        """What the keys' own ranges cannot say, refused naming the file at `path`."""
 
 
-def load_checked(
-    cls: type[T], scenario: str, override: Path | None, check: Callable[[T, Path], None]
-) -> T:
-    """As `load`, then `check(config, path)` for what the keys' own ranges cannot say; a
-    refusal names `override` if given, else the defaults' file."""
-    config = load(cls, scenario, override)
-    check(config, override or default_config_path(scenario))
-    return config
+C = TypeVar("C", bound=CheckedConfig)
+
+
+def load_checked(cls: type[C], scenario: str, override: Path | None) -> C:
+    """The defaults of `scenario` as `cls`, with the keys of `override` (if given) put over
+    them; then the config's own `check`, for what the keys' own ranges cannot say (a refusal
+    names `override` if given, else the defaults' file)."""
+    return settings.load_checked(cls, default_config_path(scenario), override, cls.check)

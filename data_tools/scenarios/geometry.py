@@ -58,3 +58,14 @@ def yaw_rotation(yaw: np.ndarray) -> np.ndarray:
 def path_length(positions: np.ndarray) -> float:
     """Length of the polyline through (N, 3) positions."""
     return float(np.linalg.norm(np.diff(positions, axis=0), axis=-1).sum())
+
+
+def inside_any(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
+    """(..., 2) points inside any of the (K, 4) rectangles [x_min, y_min, x_max, y_max]."""
+    p = points[..., None, :]
+    return (
+        (p[..., 0] >= rectangles[:, 0])
+        & (p[..., 0] <= rectangles[:, 2])
+        & (p[..., 1] >= rectangles[:, 1])
+        & (p[..., 1] <= rectangles[:, 3])
+    ).any(axis=-1)

@@ -14,7 +14,6 @@ are independent draws (a back-end uses one or the other).
 from __future__ import annotations
 
 import itertools
-import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -24,17 +23,16 @@ from typing import Annotated
 import numpy as np
 from scipy.spatial import cKDTree
 
-from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
     blocks,
+    detection_frames,
     floats,
-    frames_by_bearing,
-    metadata_for,
+    lines_inside,
     noisy_odometry,
     pieces,
-    source_text,
+    reported_classes,
     truth_landmarks,
     within_reach,
 )
@@ -47,27 +45,22 @@ from data_tools.scenarios.config import (
     Probability,
     Sigma,
     WorldSeed,
+    require,
 )
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
+    inside_any,
     inverse,
     pose_from_rotation_translation,
     quaternion_from_rotation,
     se3_exp,
 )
-from data_tools.scenarios.noise import (
-    OdometryNoiseConfig,
-    confusion_matrix,
-    random_streams,
-    sample_reported_classes,
-)
+from data_tools.scenarios.noise import OdometryNoiseConfig, random_streams
 from data_tools.scenarios.routes import RouteConfig, check_route, drive, junction_route
 from pipeline.errors import InputError
 from pipeline.frontend.classes import tag_class_names
 from pipeline.log import Detection, RelativePose
 from pipeline.settings import within
-
-logger = logging.getLogger(__name__)
 
 NAME = "indoor-tags"
 
@@ -124,51 +117,46 @@ class IndoorTagsConfig:
     measurement: TagMeasurementConfig
     odometry: OdometryNoiseConfig
 
-
-def load_config(path: Path | None = None) -> IndoorTagsConfig:
-    return cfg.load_checked(IndoorTagsConfig, NAME, path, _check)
-
-
-def _check(c: IndoorTagsConfig, path: Path) -> None:
-    """What the keys' own ranges cannot say."""
-    req = cfg.require
-    f = c.floor
-    width = f.corridor_width_m + 2 * c.tags.junction_clearance_m
-    for key, axis in (("corridor_x_m", f.corridor_x_m), ("corridor_y_m", f.corridor_y_m)):
-        req(len(axis) >= 2, path, f"'floor.{key}' needs at least two corridors")
-        req(bool(np.all(np.diff(axis) > 0)), path, f"'floor.{key}' must be in increasing order")
-        req(
-            bool(np.all(np.diff(axis) > width)),
+    def check(self, path: Path | str) -> None:
+        f = self.floor
+        width = f.corridor_width_m + 2 * self.tags.junction_clearance_m
+        for key, axis in (("corridor_x_m", f.corridor_x_m), ("corridor_y_m", f.corridor_y_m)):
+            require(len(axis) >= 2, path, f"'floor.{key}' needs at least two corridors")
+            increasing = bool(np.all(np.diff(axis) > 0))
+            require(increasing, path, f"'floor.{key}' must be in increasing order")
+            require(
+                bool(np.all(np.diff(axis) > width)),
+                path,
+                f"'floor.{key}': corridors closer than floor.corridor_width_m + 2 "
+                f"tags.junction_clearance_m ({width:g} m)",
+            )
+        junctions = len(f.corridor_x_m) * len(f.corridor_y_m)
+        require(
+            junctions <= MAX_JUNCTIONS,
             path,
-            f"'floor.{key}': corridors closer than floor.corridor_width_m + 2 "
-            f"tags.junction_clearance_m ({width:g} m)",
+            f"floor.corridor_x_m x corridor_y_m make {junctions} junctions; "
+            f"at most {MAX_JUNCTIONS}",
         )
-    junctions = len(f.corridor_x_m) * len(f.corridor_y_m)
-    req(
-        junctions <= MAX_JUNCTIONS,
-        path,
-        f"floor.corridor_x_m x corridor_y_m make {junctions} junctions; at most {MAX_JUNCTIONS}",
-    )
-    check_route(c.route, path, req)
-    # The route turns at junctions: each turn is a corridor long at least.
-    gap = min(np.diff(f.corridor_x_m).min(), np.diff(f.corridor_y_m).min())
-    turns = (1.1 * c.route.length_m + 50.0) / gap
-    req(
-        turns <= MAX_TURNS,
-        path,
-        f"route.length_m ({c.route.length_m:g} m) between floor corridors {gap:g} m apart makes "
-        f"{turns:.3g} turns; at most {MAX_TURNS}",
-    )
-    req(
-        c.route.wander_amplitude_m < c.floor.corridor_width_m / 2,
-        path,
-        "route.wander_amplitude_m must keep the robot inside its corridor",
-    )
-    req(
-        c.tags.height_min_m <= c.tags.height_max_m,
-        path,
-        "tags.height_min_m must be <= height_max_m",
-    )
+        check_route(self.route, path, require)
+        # The route turns at junctions: each turn is a corridor long at least.
+        gap = min(np.diff(f.corridor_x_m).min(), np.diff(f.corridor_y_m).min())
+        turns = (1.1 * self.route.length_m + 50.0) / gap
+        require(
+            turns <= MAX_TURNS,
+            path,
+            f"route.length_m ({self.route.length_m:g} m) between floor corridors {gap:g} m "
+            f"apart makes {turns:.3g} turns; at most {MAX_TURNS}",
+        )
+        require(
+            self.route.wander_amplitude_m < self.floor.corridor_width_m / 2,
+            path,
+            "route.wander_amplitude_m must keep the robot inside its corridor",
+        )
+        require(
+            self.tags.height_min_m <= self.tags.height_max_m,
+            path,
+            "tags.height_min_m must be <= height_max_m",
+        )
 
 
 # --- the world ------------------------------------------------------------------------------
@@ -258,7 +246,7 @@ def build_world(config: IndoorTagsConfig) -> IndoorWorld:
     times_ns, poses = drive(vertices, config.route, NAME)
     tag_poses = place_tags(corridors, config.floor.corridor_width_m, config.tags, rng)
     free_space = free_space_of(corridors, config.floor.corridor_width_m)
-    if not in_free_space(poses[:, :2, 3], free_space).all():
+    if not inside_any(poses[:, :2, 3], free_space).all():
         raise InputError(
             f"{NAME} config: the route leaves the corridors; lower route.corner_smoothing_m or "
             "route.wander_amplitude_m"
@@ -273,28 +261,6 @@ def build_world(config: IndoorTagsConfig) -> IndoorWorld:
 
 
 # --- what the camera sees -------------------------------------------------------------------
-
-
-def in_free_space(points: np.ndarray, rectangles: np.ndarray) -> np.ndarray:
-    """(..., 2) points inside any of the rectangles."""
-    p = points[..., None, :]
-    inside = (
-        (p[..., 0] >= rectangles[:, 0])
-        & (p[..., 0] <= rectangles[:, 2])
-        & (p[..., 1] >= rectangles[:, 1])
-        & (p[..., 1] <= rectangles[:, 3])
-    )
-    return inside.any(axis=-1)
-
-
-def clear_lines(start: np.ndarray, end: np.ndarray, free_space: np.ndarray) -> np.ndarray:
-    """(n,) whether the (n, 2) lines from `start` to `end` stay on the floor (no wall between)."""
-    clear = np.empty(len(start), dtype=bool)
-    for rows in blocks(len(start), len(LINE_OF_SIGHT_SAMPLES) * len(free_space)):
-        a, b = start[rows], end[rows]
-        samples = a[:, None, :] + LINE_OF_SIGHT_SAMPLES[None, :, None] * (b - a)[:, None, :]
-        clear[rows] = in_free_space(samples, free_space).all(axis=1)
-    return clear
 
 
 def visible_tags(
@@ -322,7 +288,9 @@ def visible_tags(
         )
         pose_index, k = np.nonzero(mask)
         pose_index, tag_id = pose_index + poses.start, near[k]
-        clear = clear_lines(positions[pose_index, :2], tags[tag_id, :2], world.free_space)
+        start, end = positions[pose_index, :2], tags[tag_id, :2]
+        # On the floor all the way: no wall between.
+        clear = lines_inside(start, end, LINE_OF_SIGHT_SAMPLES, world.free_space, every=True)
         yield poses, (pose_index[clear], tag_id[clear])
 
 
@@ -332,6 +300,8 @@ def visible_tags(
 def simulate(
     config: IndoorTagsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
+    """The floor's run: the route of `config` walked once, the camera's misses and noise drawn
+    from `options.seed`; a detection states the tag's relative pose as well."""
     world = build_world(config)
     streams = random_streams(options.seed)
     num_classes = options.num_classes
@@ -340,9 +310,6 @@ def simulate(
     poses = origin @ world.poses
     tag_poses = origin @ world.tag_poses
 
-    odometry, covariance = noisy_odometry(config.odometry, options, poses, streams["odometry"])
-    confusion = confusion_matrix(num_classes, options.misclassification)
-
     def detections() -> Iterator[list[Detection]]:
         """Each pose's detections, made a piece of the run at a time."""
         m = config.measurement
@@ -350,7 +317,7 @@ def simulate(
         pose_sigmas = np.array(
             [m.relative_pose_sigma_rotation_rad] * 3 + [m.relative_pose_sigma_translation_m] * 3
         )
-        point_covariance = floats(np.diag(point_sigmas**2))
+        point_covariance = np.diag(point_sigmas**2)
         pose_covariance = floats(np.diag(pose_sigmas**2))
         for piece, (pose_index, tag_id) in pieces(visible_tags(world, config.camera)):
             seen = streams["visibility"].random(len(pose_index))
@@ -365,41 +332,32 @@ def simulate(
             measured_pose = relative @ se3_exp(pose_noise)
             measured_quaternion = quaternion_from_rotation(measured_pose[:, :3, :3])
 
-            true_class = tag_id % num_classes
-            reported = sample_reported_classes(streams["classes"], true_class, confusion)
-
-            found = [
-                Detection(
-                    class_id=int(reported[d]),
-                    score=1.0,
-                    bearing=float(measured[d, 0]),
-                    elevation=float(measured[d, 1]),
-                    range=float(measured[d, 2]),
-                    covariance=point_covariance,
-                    source="apriltag",
-                    relative_pose=RelativePose(
-                        translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
-                        rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
-                        covariance=pose_covariance,
-                    ),
-                    truth_landmark_id=int(tag_id[d]),
+            reported = reported_classes(options, tag_id, streams["classes"])
+            relative_poses = [
+                RelativePose(
+                    translation=floats(measured_pose[d, :3, 3]),  # type: ignore[arg-type]
+                    rotation=floats(measured_quaternion[d]),  # type: ignore[arg-type]
+                    covariance=pose_covariance,
                 )
-                for d in range(len(pose_index))
+                for d in range(len(tag_id))
             ]
-            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
+            yield from detection_frames(
+                piece,
+                pose_index,
+                measured,
+                point_covariance,
+                reported,
+                tag_id,
+                "apriltag",
+                relative_pose=relative_poses,
+            )
 
-    landmarks = truth_landmarks(tag_poses[:, :3, 3], np.arange(len(tag_poses)) % num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,
-        odometry=odometry,
-        odometry_covariance=covariance,
+        odometry=noisy_odometry(config.odometry, options, poses, streams["odometry"]),
         detections=detections(),
-        landmarks=landmarks,
-        metadata=metadata_for(
-            num_classes,
-            confusion,
-            tag_class_names(num_classes),
-            source_text(NAME, options, config_path),
-        ),
+        landmarks=truth_landmarks(tag_poses[:, :3, 3], np.arange(len(tag_poses)) % num_classes),
+        confusion=options.confusion,
+        class_names=tag_class_names(num_classes),
     )

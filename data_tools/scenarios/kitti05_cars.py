@@ -29,14 +29,11 @@ from data_tools.scenarios.common import (
     SimulatedRun,
     SimulationOptions,
     blocks,
-    floats,
-    frames_by_bearing,
-    metadata_for,
+    detection_frames,
     noisy_odometry,
     pieces,
-    source_text,
+    reported_classes,
     truth_landmarks,
-    vehicle_class_names,
 )
 from data_tools.scenarios.config import (
     MAX_LANDMARKS,
@@ -45,20 +42,16 @@ from data_tools.scenarios.config import (
     PerFrame,
     Sigma,
     WorldSeed,
+    require,
 )
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
     orthonormalise,
     yaw_rotation,
 )
-from data_tools.scenarios.noise import (
-    OdometryNoiseConfig,
-    confusion_matrix,
-    logistic,
-    random_streams,
-    sample_reported_classes,
-)
+from data_tools.scenarios.noise import OdometryNoiseConfig, logistic, random_streams
 from data_tools.scenarios.routes import MAX_KEYFRAMES
+from data_tools.scenarios.vehicles import VehicleType, type_shares, vehicle_class_names
 from pipeline.datasets.camera import BODY_FROM_CAMERA, StereoIntrinsics
 from pipeline.datasets.kitti import (
     camera_poses_to_body,
@@ -97,9 +90,9 @@ class SequenceConfig:
 
 
 @dataclass(frozen=True)
-class VehicleClass:
-    name: str
-    frequency: Annotated[float, positive(1.0)]
+class VehicleClass(VehicleType):
+    """A vehicle type, and its cars' size."""
+
     length_m: Annotated[float, positive(100.0)]
     width_m: Annotated[float, positive(100.0)]
     height_m: Annotated[float, positive(100.0)]
@@ -151,18 +144,11 @@ class Kitti05CarsConfig:
         """One class per vehicle class by default."""
         return len(self.vehicles)
 
-
-def load_config(path: Path | None = None) -> Kitti05CarsConfig:
-    return cfg.load_checked(Kitti05CarsConfig, NAME, path, _check)
-
-
-def _check(c: Kitti05CarsConfig, path: Path) -> None:
-    """What the keys' own ranges cannot say."""
-    req = cfg.require
-    req(len(c.vehicles) >= 1, path, "at least one vehicle class is needed")
-    p, d = c.parking, c.detector
-    req(p.gap_min_m <= p.gap_max_m, path, "parking gaps: gap_min_m <= gap_max_m")
-    req(d.min_depth_m < d.max_range_m, path, "detector: min_depth_m < max_range_m")
+    def check(self, path: Path | str) -> None:
+        require(len(self.vehicles) >= 1, path, "at least one vehicle class is needed")
+        p, d = self.parking, self.detector
+        require(p.gap_min_m <= p.gap_max_m, path, "parking gaps: gap_min_m <= gap_max_m")
+        require(d.min_depth_m < d.max_range_m, path, "detector: min_depth_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------
@@ -237,8 +223,7 @@ def kerb_rows(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Arc positions and vehicle types of cars along one kerb: rows split by empty stretches."""
     lengths = np.array([v.length_m for v in vehicles])
-    shares = np.array([v.frequency for v in vehicles])
-    shares = shares / shares.sum()
+    shares = type_shares(vehicles)
     centres, types = [], []
     s = rng.exponential(parking.empty_mean_m)
     while s < length:
@@ -305,22 +290,22 @@ def check_world_size(config: Kitti05CarsConfig, positions: np.ndarray, path: Pat
     """What the keys' ranges cannot say until the sequence is read: the keyframes, and what
     the parking keys make of its path (street samples, their revisit pairs, cars and their
     neighbours), refused before any of it is made."""
-    req, p = cfg.require, config.parking
-    req(
+    p = config.parking
+    require(
         len(positions) <= MAX_KEYFRAMES,
         path,
         f"sequence.data_dir holds {len(positions)} poses; at most {MAX_KEYFRAMES}",
     )
     length = float(np.linalg.norm(np.diff(positions, axis=0), axis=1).sum())
     samples = length / p.path_step_m
-    req(
+    require(
         samples <= MAX_STREET_SAMPLES,
         path,
         f"parking.path_step_m ({p.path_step_m:g} m) cuts the {length:.0f} m path into "
         f"{samples:.3g} samples; at most {MAX_STREET_SAMPLES}",
     )
     pairs = samples * p.revisit_radius_m / p.path_step_m
-    req(
+    require(
         pairs <= MAX_NEAR_PAIRS,
         path,
         f"parking.revisit_radius_m / path_step_m ({p.revisit_radius_m:g} / {p.path_step_m:g}) "
@@ -328,14 +313,14 @@ def check_world_size(config: Kitti05CarsConfig, positions: np.ndarray, path: Pat
     )
     spacing = min(v.length_m for v in config.vehicles) + p.gap_min_m
     cars = 2 * length / spacing
-    req(
+    require(
         cars <= MAX_LANDMARKS,
         path,
         f"[[vehicles]] length_m and parking.gap_min_m (a car every {spacing:g} m at the closest) "
         f"could park {cars:.3g} cars along the {length:.0f} m path; at most {MAX_LANDMARKS}",
     )
     pairs = cars * (2 * p.min_separation_m / spacing + 1)
-    req(
+    require(
         pairs <= MAX_NEAR_PAIRS,
         path,
         f"parking.min_separation_m ({p.min_separation_m:g} m) over cars {spacing:g} m apart "
@@ -518,8 +503,7 @@ def false_alarms(
     count = rng.poisson(d.false_alarms_per_frame, num_frames)
     pose_index = np.repeat(np.arange(num_frames), count)
     n = len(pose_index)
-    shares = np.array([v.frequency for v in config.vehicles])
-    kind = rng.choice(len(config.vehicles), size=n, p=shares / shares.sum())
+    kind = rng.choice(len(config.vehicles), size=n, p=type_shares(config.vehicles))
     sizes = np.array([[v.length_m, v.width_m, v.height_m] for v in config.vehicles])[kind]
     u = rng.uniform(0.0, camera.width, n)
     depth = rng.uniform(d.min_depth_m, d.max_range_m, n)
@@ -556,14 +540,11 @@ def _concatenate(a: DetectionBatch, b: DetectionBatch) -> DetectionBatch:
 def simulate(
     config: Kitti05CarsConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
+    """The sequence's run: KITTI's own path past the cars parked for `config`, the detector's
+    scores, misses, noise and false alarms drawn from `options.seed`."""
     world = build_world(config, config_path or cfg.default_config_path(NAME))
     streams = random_streams(options.seed)
     num_classes = options.num_classes
-
-    odometry, covariance = noisy_odometry(
-        config.odometry, options, world.poses, streams["odometry"]
-    )
-    confusion = confusion_matrix(num_classes, options.misclassification)
 
     def detections() -> Iterator[list[Detection]]:
         """Each pose's detections, made a piece of the run at a time."""
@@ -575,36 +556,26 @@ def simulate(
             batch = _concatenate(
                 detect_cars(world, config.camera, d, streams, candidates), phantoms
             )
-            kinds = batch.kind % num_classes
-            reported = sample_reported_classes(streams["classes"], kinds, confusion)
+            reported = reported_classes(options, batch.kind, streams["classes"])
+            yield from detection_frames(
+                piece,
+                batch.pose_index,
+                batch.measured,
+                batch.covariance,
+                reported,
+                batch.truth,
+                "bbox",
+                score=batch.score,
+                bbox=batch.bbox,
+            )
 
-            found = [
-                Detection(
-                    class_id=int(reported[k]),
-                    score=float(batch.score[k]),
-                    bearing=float(batch.measured[k, 0]),
-                    elevation=float(batch.measured[k, 1]),
-                    range=float(batch.measured[k, 2]),
-                    covariance=floats(batch.covariance[k]),
-                    source="bbox",
-                    bbox=floats(batch.bbox[k]),  # type: ignore[arg-type]
-                    truth_landmark_id=int(batch.truth[k]),
-                )
-                for k in range(len(batch.pose_index))
-            ]
-            yield from frames_by_bearing(piece, batch.pose_index, batch.measured[:, 0], found)
-
-    landmarks = truth_landmarks(world.car_poses[:, :3, 3], world.car_types % num_classes)
-    names = vehicle_class_names(config.vehicles, num_classes)
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=world.poses,
-        odometry=odometry,
-        odometry_covariance=covariance,
+        odometry=noisy_odometry(config.odometry, options, world.poses, streams["odometry"]),
         detections=detections(),
-        landmarks=landmarks,
-        metadata=metadata_for(
-            num_classes, confusion, names, source_text(NAME, options, config_path)
-        ),
+        landmarks=truth_landmarks(world.car_poses[:, :3, 3], world.car_types % num_classes),
+        confusion=options.confusion,
+        class_names=vehicle_class_names(config.vehicles, num_classes),
         calibration=config.camera.calibration_message(int(world.times_ns[0])),
     )

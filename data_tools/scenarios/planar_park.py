@@ -14,7 +14,6 @@ detections, the measurement noise and the clutter.
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -24,16 +23,14 @@ from typing import Annotated
 import numpy as np
 from scipy.spatial import cKDTree
 
-from data_tools.scenarios import config as cfg
 from data_tools.scenarios.common import (
+    MeasuredOdometry,
     SimulatedRun,
     SimulationOptions,
     blocks,
-    floats,
-    frames_by_bearing,
-    metadata_for,
+    detection_frames,
+    first_pose_frame,
     pieces,
-    source_text,
     truth_landmarks,
     within_reach,
 )
@@ -46,6 +43,7 @@ from data_tools.scenarios.config import (
     Sigma,
     Spread,
     WorldSeed,
+    require,
 )
 from data_tools.scenarios.geometry import (
     bearing_elevation_range,
@@ -58,8 +56,6 @@ from data_tools.scenarios.routes import RouteConfig, check_route, drive
 from pipeline.errors import InputError
 from pipeline.log import Detection
 from pipeline.settings import positive, within
-
-logger = logging.getLogger(__name__)
 
 NAME = "planar-park"
 # The route's turns (places visited) at the most.
@@ -115,19 +111,12 @@ class PlanarParkConfig:
     scanner: ScannerConfig
     odometry: BiasedOdometryConfig
 
-
-def load_config(path: Path | None = None) -> PlanarParkConfig:
-    return cfg.load_checked(PlanarParkConfig, NAME, path, _check)
-
-
-def _check(c: PlanarParkConfig, path: Path) -> None:
-    """What the keys' own ranges cannot say."""
-    req = cfg.require
-    p, s = c.park, c.scanner
-    req(p.size_m > 2 * p.margin_m, path, "park.size_m must exceed 2 margin_m")
-    req(p.next_choices < p.places, path, "park.next_choices must be < places")
-    check_route(c.route, path, req)
-    req(s.min_range_m < s.max_range_m, path, "scanner ranges: min_range_m < max_range_m")
+    def check(self, path: Path | str) -> None:
+        p, s = self.park, self.scanner
+        require(p.size_m > 2 * p.margin_m, path, "park.size_m must exceed 2 margin_m")
+        require(p.next_choices < p.places, path, "park.next_choices must be < places")
+        check_route(self.route, path, require)
+        require(s.min_range_m < s.max_range_m, path, "scanner ranges: min_range_m < max_range_m")
 
 
 # --- the world ------------------------------------------------------------------------------
@@ -287,18 +276,19 @@ def clutter(
 def simulate(
     config: PlanarParkConfig, options: SimulationOptions, config_path: Path | None = None
 ) -> SimulatedRun:
+    """The park's run: the loops of `config` driven once, the odometry's bias and noise, the
+    scanner's misses, noise and clutter drawn from `options.seed`; one class, trees."""
     world = build_world(config)
     streams = random_streams(options.seed)
-    origin = np.linalg.inv(world.poses[0])
-    poses = origin @ world.poses
-    trees = world.trees @ origin[:3, :3].T + origin[:3, 3]
+    poses, trees = first_pose_frame(world.poses, world.trees)
     o, s = config.odometry, config.scanner
 
     scale = options.odom_noise_scale
-    odometry = biased_planar_odometry(relative_poses(poses), o, scale, streams["odometry"])
-    covariance = stated_odometry_covariance(o, scale, options.true_covariance)
-
-    stated = floats(
+    odometry = MeasuredOdometry(
+        biased_planar_odometry(relative_poses(poses), o, scale, streams["odometry"]),
+        stated_odometry_covariance(o, scale, options.true_covariance),
+    )
+    stated = (
         np.diag([s.stated_sigma_bearing_rad, s.stated_sigma_elevation_rad, s.stated_sigma_range_m])
         ** 2
     )
@@ -320,31 +310,16 @@ def simulate(
             measured[:, 0] += s.sigma_bearing_rad * noise[:, 0]
             measured[:, 1] = 0.0  # a planar scanner
             measured[:, 2] = np.maximum(measured[:, 2] + s.sigma_range_m * noise[:, 1], 0.1)
+            trunk = np.zeros(len(truth), dtype=int)
+            # The contract knows tags and detector boxes: a trunk is boxed.
+            yield from detection_frames(piece, pose_index, measured, stated, trunk, truth, "bbox")
 
-            found = [
-                Detection(
-                    class_id=0,
-                    score=1.0,
-                    bearing=float(measured[k, 0]),
-                    elevation=float(measured[k, 1]),
-                    range=float(measured[k, 2]),
-                    covariance=stated,
-                    source="bbox",  # the contract knows tags and detector boxes: a trunk
-                    truth_landmark_id=int(truth[k]),
-                )
-                for k in range(len(pose_index))
-            ]
-            yield from frames_by_bearing(piece, pose_index, measured[:, 0], found)
-
-    landmarks = truth_landmarks(trees, [0] * len(trees))
     return SimulatedRun(
         times_ns=world.times_ns,
         poses=poses,
         odometry=odometry,
-        odometry_covariance=covariance,
         detections=detections(),
-        landmarks=landmarks,
-        metadata=metadata_for(
-            1, np.ones((1, 1)), ["tree"], source_text(NAME, options, config_path)
-        ),
+        landmarks=truth_landmarks(trees, [0] * len(trees)),
+        confusion=np.ones((1, 1)),
+        class_names=["tree"],
     )

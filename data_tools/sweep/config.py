@@ -29,7 +29,6 @@ for all six), or a detection component ("stated_bearing", "stated_elevation",
 from __future__ import annotations
 
 import hashlib
-import importlib
 import json
 import math
 import re
@@ -39,7 +38,7 @@ from typing import Any
 
 import msgspec.inspect as mi
 
-from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS
+from data_tools.scenarios import MAX_NOISE_SCALE, SCENARIOS, load_config
 from data_tools.stated_noise import MAX_FACTOR, STATED_DIRECTIONS
 from pipeline import settings
 from pipeline.backend.methods import METHODS
@@ -194,8 +193,7 @@ def _path(value: Any, path: Path, key: str) -> Path:
 
 def _scenario_config(scenario: str, override: Path | None) -> Any:
     """The scenario's config (its loader checks the override file)."""
-    module = importlib.import_module(f"data_tools.scenarios.{scenario.replace('-', '_')}")
-    return module.load_config(override)
+    return load_config(scenario, override)
 
 
 def fingerprint(

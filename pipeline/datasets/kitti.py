@@ -21,17 +21,26 @@ GREY_PAIR = ("image_0", "image_1", "P0", "P1")
 COLOUR_PAIR = ("image_2", "image_3", "P2", "P3")
 
 
-def read_poses(path: str | Path) -> np.ndarray:
-    """KITTI poses file: N lines of 12 numbers (3x4 row-major) to an (N, 4, 4) array."""
-    path = Path(path)
+def _read_numbers(path: Path, what: str, ndmin: int) -> np.ndarray:
+    """The numbers of a text file, a line a row; one that cannot be read is refused naming
+    `what` it should hold."""
     try:
-        rows = np.loadtxt(path, ndmin=2)
+        return np.loadtxt(path, ndmin=ndmin)
     except (OSError, ValueError) as exc:
-        raise InputError(f"poses {path}: cannot read ({exc})") from None
+        raise InputError(f"{what} {path}: cannot read ({exc})") from None
+
+
+def read_poses(path: str | Path, images: int | None = None) -> np.ndarray:
+    """KITTI poses file: N lines of 12 numbers (3x4 row-major) to an (N, 4, 4) array; one pose
+    an image where the sequence's `images` are given."""
+    path = Path(path)
+    rows = _read_numbers(path, "poses", 2)
     if rows.shape[1] != 12:
         raise InputError(f"poses {path}: expected 12 numbers a line, got {rows.shape[1]}")
     if not np.all(np.isfinite(rows)):
         raise InputError(f"poses {path}: holds non-finite numbers")
+    if images is not None and len(rows) != images:
+        raise InputError(f"poses {path}: {len(rows)} poses for {images} images")
     poses = np.tile(np.eye(4), (rows.shape[0], 1, 1))
     poses[:, :3, :] = rows.reshape(-1, 3, 4)
     return poses
@@ -42,14 +51,17 @@ def write_poses(path: str | Path, poses: np.ndarray) -> None:
     np.savetxt(path, rows, fmt="%.9e")
 
 
-def read_times(path: str | Path) -> np.ndarray:
+def read_times(path: str | Path, images: int | None = None) -> np.ndarray:
+    """A times file: one increasing time (s) a line; one an image where the sequence's
+    `images` are given."""
     path = Path(path)
-    try:
-        times = np.loadtxt(path, ndmin=1)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"times {path}: cannot read ({exc})") from None
+    times = _read_numbers(path, "times", 1)
     if times.ndim != 1 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
         raise InputError(f"times {path}: expected one increasing time a line")
+    if images is not None and len(times) != images:
+        raise InputError(
+            f"sequence {path.parent}: {path.name} has {len(times)} lines for {images} images"
+        )
     return times
 
 
@@ -157,12 +169,7 @@ class KittiSequence(StereoSequence):
         self.left_files, self.right_files = pair_files(
             self.root / left, self.root / right, self.root
         )
-        self.times = read_times(self.root / "times.txt")
-        if len(self.times) != len(self.left_files):
-            raise InputError(
-                f"sequence {self.root}: times.txt has {len(self.times)} lines for "
-                f"{len(self.left_files)} images"
-            )
+        self.times = read_times(self.root / "times.txt", len(self.left_files))
         first = read_image(self.left_files[0])
         self.colour = first.ndim == 3
         height, width = first.shape[:2]
@@ -177,8 +184,5 @@ class KittiSequence(StereoSequence):
             self.root.parent.parent / "poses" / f"{self.root.name}.txt",
         ):
             if path.exists():
-                poses = read_poses(path)
-                if len(poses) != len(self):
-                    raise InputError(f"poses {path}: {len(poses)} poses for {len(self)} images")
-                return poses
+                return read_poses(path, len(self))
         return None

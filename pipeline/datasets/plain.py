@@ -121,23 +121,12 @@ class PlainSequence(StereoSequence):
         self.left_files, self.right_files = pair_files(folders[0], folders[1], self.root)
         times_path = self.root / "times.txt"
         if times_path.exists():
-            self.times = read_times(times_path)
-            if len(self.times) != len(self):
-                raise InputError(
-                    f"sequence {self.root}: times.txt has {len(self.times)} lines for "
-                    f"{len(self)} images"
-                )
+            self.times = read_times(times_path, len(self))
         else:
             self.times = np.arange(len(self)) / float(sequence["frame_rate"])
         first = read_image(self.left_files[0])
         self.colour = first.ndim == 3
         height, width = first.shape[:2]
         self.intrinsics = intrinsics_for_images(calibration, camera, width, height)
-        self.gt_poses = None
         poses_path = self.root / "poses.txt"
-        if poses_path.exists():
-            self.gt_poses = read_poses(poses_path)
-            if len(self.gt_poses) != len(self):
-                raise InputError(
-                    f"poses {poses_path}: {len(self.gt_poses)} poses for {len(self)} images"
-                )
+        self.gt_poses = read_poses(poses_path, len(self)) if poses_path.exists() else None

@@ -7,6 +7,7 @@ quaternions [x, y, z, w] (the contract's order, which is also Foxglove's).
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from typing import Any
 
 import foxglove.messages as fg
 import numpy as np
@@ -110,6 +111,12 @@ def camera_calibration(calibration: StereoCalibration, frame: str = CAMERA) -> f
     )
 
 
+def scene_entity(stamp_ns: int, frame: str, entity_id: str, **primitives: Any) -> fg.SceneEntity:
+    """An entity of `primitives` (spheres=, lines=, texts=: lists of them) in `frame`, that
+    replaces the previous of its id."""
+    return fg.SceneEntity(timestamp=timestamp(stamp_ns), frame_id=frame, id=entity_id, **primitives)
+
+
 def sphere_entity(
     stamp_ns: int,
     entity_id: str,
@@ -133,17 +140,9 @@ def sphere_entity(
                 text=label,
             )
         ]
-    return fg.SceneEntity(
-        timestamp=timestamp(stamp_ns),
-        frame_id=frame,
-        id=entity_id,
-        spheres=[
-            fg.SpherePrimitive(
-                pose=pose(position), size=fg.Vector3(x=size_m, y=size_m, z=size_m), color=rgb_alpha
-            )
-        ],
-        texts=texts,
-    )
+    size = fg.Vector3(x=size_m, y=size_m, z=size_m)
+    sphere = fg.SpherePrimitive(pose=pose(position), size=size, color=rgb_alpha)
+    return scene_entity(stamp_ns, frame, entity_id, spheres=[sphere], texts=texts)
 
 
 def landmark_update(
@@ -171,23 +170,17 @@ def lines_entity(
     for start, end, segment_colour in segments:
         points += [point3(start), point3(end)]
         colours += [segment_colour, segment_colour]
-    return fg.SceneEntity(
-        timestamp=timestamp(stamp_ns),
-        frame_id=frame,
-        id=entity_id,
-        lines=[
-            fg.LinePrimitive(
-                type=fg.LinePrimitiveLineType.LineList,
-                pose=pose((0.0, 0.0, 0.0)),
-                thickness=LINE_THICKNESS_PX,
-                scale_invariant=True,
-                points=points,
-                colors=colours,
-            )
-        ]
-        if points
-        else [],
-    )
+    lines = [
+        fg.LinePrimitive(
+            type=fg.LinePrimitiveLineType.LineList,
+            pose=pose((0.0, 0.0, 0.0)),
+            thickness=LINE_THICKNESS_PX,
+            scale_invariant=True,
+            points=points,
+            colors=colours,
+        )
+    ]
+    return scene_entity(stamp_ns, frame, entity_id, lines=lines if points else [])
 
 
 def detection_update(
@@ -203,10 +196,7 @@ def detection_update(
         )
         for p, c in zip(points, class_ids, strict=True)
     ]
-    entity = fg.SceneEntity(
-        timestamp=timestamp(stamp_ns), frame_id=BODY, id="detections", spheres=spheres
-    )
-    return fg.SceneUpdate(entities=[entity])
+    return fg.SceneUpdate(entities=[scene_entity(stamp_ns, BODY, "detections", spheres=spheres)])
 
 
 def image_annotations(

@@ -163,9 +163,7 @@ class FrontendConfig:
 def load_frontend_config(path: str | Path | None = None) -> FrontendConfig:
     """The front-end defaults, with the keys of `path` (if given) put over them."""
     default = settings.config_path("frontend.toml")
-    config = settings.load(FrontendConfig, default, path)
-    check_frontend_config(config, path if path is not None else default)
-    return config
+    return settings.load_checked(FrontendConfig, default, path, check_frontend_config)
 
 
 def check_frontend_config(config: FrontendConfig, path: Path | str = "<config>") -> None:

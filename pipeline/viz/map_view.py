@@ -377,29 +377,13 @@ class MapView:
             candidates = list(zip(record.landmark_ids, record.weights, strict=True))
             self._event(events.null_win(i, m.detection_index, candidates, record.null_weight))
         if null_points:
-            self.rec.log(
-                e.NULL_WINS,
-                rr.Points3D(
-                    null_points,
-                    colors=draw.packed_rgba(draw.NULL_WINNER_RGB)[None],
-                    radii=rr.Radius.ui_points(7.0),
-                    labels=null_labels,
-                    show_labels=False,  # the lines and the event log say it; hover for more
-                ),
-            )
+            found = np.array(null_points)
+            self.rec.log(e.NULL_WINS, marks.null_decisions(found, null_labels, radius_ui=7.0))
+            # and kept where they happened, shown up to the time cursor
+            self.rec.log(e.NULL_DECISIONS, marks.null_decisions(found, null_labels))
         self._clear_unless(e.NULL_WINS, bool(null_points))
-        if null_points:  # and kept where they happened, shown up to the time cursor
-            self.rec.log(e.NULL_DECISIONS, marks.null_decisions(np.array(null_points), null_labels))
         if strips:
-            self.rec.log(
-                e.SWITCHES,
-                rr.LineStrips3D(
-                    strips,
-                    colors=draw.packed_rgba(draw.SWITCH_RGB)[None],
-                    radii=rr.Radius.ui_points(4.0),
-                    labels=strip_labels,
-                ),
-            )
+            self.rec.log(e.SWITCHES, marks.switches(strips, strip_labels))
         self._clear_unless(e.SWITCHES, bool(strips))
 
     def _log_final_wrong(self, result: BackendResult, rows: np.ndarray, last: int) -> None:

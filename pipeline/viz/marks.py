@@ -98,14 +98,29 @@ def wrong_lines(
     ]
 
 
-def null_decisions(points: np.ndarray, labels: Sequence[str]) -> rr.Points3D:
-    """Where detections were left to the null hypothesis (the points they measured)."""
+def null_decisions(
+    points: np.ndarray, labels: Sequence[str], radius_ui: float = 3.5
+) -> rr.Points3D:
+    """Where detections were left to the null hypothesis (the points they measured), dots of
+    `radius_ui` UI points: the history's small, this keyframe's larger. Unlabelled in the map
+    (the lines and the event log say it); hover for more."""
     return rr.Points3D(
         points,
         colors=draw.packed_rgba(draw.NULL_WINNER_RGB)[None],
-        radii=rr.Radius.ui_points(3.5),
+        radii=rr.Radius.ui_points(radius_ui),
         labels=list(labels),
         show_labels=False,
+    )
+
+
+def switches(strips: Sequence[np.ndarray], labels: Sequence[str]) -> rr.LineStrips3D:
+    """A line from each detection whose association switched at this keyframe to what it went
+    to (a landmark, or the point it measured for the null hypothesis)."""
+    return rr.LineStrips3D(
+        strips,
+        colors=draw.packed_rgba(draw.SWITCH_RGB)[None],
+        radii=rr.Radius.ui_points(4.0),
+        labels=list(labels),
     )
 
 

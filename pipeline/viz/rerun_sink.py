@@ -21,7 +21,6 @@ import dataclasses
 import math
 import time
 from collections import defaultdict
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -99,14 +98,13 @@ class RerunSink(MapView, ImageView, RecordingBase):
         cls,
         application: str,
         *,
-        rrd: str | Path | None = None,
-        spawn: bool = False,
-        connect: str | None = None,
         config: VizConfig | None = None,
         map_aspect: float = REPLAY_MAP_ASPECT,
+        **where: Any,
     ) -> RerunSink:
-        """A sink for exactly one of: a recording file, a new viewer, a running viewer."""
-        destination = Destination.open(application, rrd=rrd, spawn=spawn, connect=connect)
+        """A sink for exactly one of: a recording file, a new viewer, a running viewer, as
+        `where` says (`rrd=`, `spawn=` or `connect=`, as `Destination.open` takes them)."""
+        destination = Destination.open(application, **where)
         return cls(destination, config or load_viz_config(), map_aspect=map_aspect)
 
     # --------------------------------------------------------------------------------- replay

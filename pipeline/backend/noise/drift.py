@@ -8,13 +8,21 @@ the window's odometry and the rest of the graph as two measurements of T, the od
 the covariance Q_u it was given (the stated one at the scales in use) and the rest's with R:
 the estimate fuses them, C^-1 = Q_u^-1 + R^-1, and delta = G (z_odometry - z_rest) with
 G = I - C Q_u^-1. If the odometry's true covariance is Q(s) (the stated one at scales s, per
-direction), delta ~ N(0, G Q(s) G^T + C - C Q_u^-1 C). In the frame that whitens Q_u, with
-C = U diag(lambda) U^T: G = U diag(1 - lambda) U^T, and the part that does not depend on s is
-U diag(lambda - lambda^2) U^T. A direction the landmarks decide nothing of (lambda = 1) says
-nothing of s; one across a loop closure (lambda near 0) says much. Q(s) is linear in the pair
-coefficients sqrt(s_i s_j) (`components.py`), so a window is one `ScaleObservation` of the
-odometry's six directions, valid whatever scales are in use later: the windows of every scale
-are read together.
+direction), delta ~ N(0, G Q(s) G^T + G R_true G^T), and G R G^T = C - C Q_u^-1 C. What the
+rest is decides R_true: landmarks err as stated (R_true = R), but the rest of a loop is the
+loop's other odometry, erring as this window's does. Read again once a loop closes, most
+windows are decided by the rest of their loop, and taking R_true = R there read an understated
+odometry high by up to 1 / (1 - lambda): the yaw at 1937 where the truth is 82 (a
+street grid, noise 4), and the wide gates then closed wrong loops. So the rest is taken to err
+as the odometry does: in the frame that whitens Q_u, with C = U diag(lambda) U^T,
+G = U diag(1 - lambda) U^T and G R_true G^T = M Q_w(s) M^T, M = U diag(sqrt(lambda -
+lambda^2)) U^T, Q_w(s) the true covariance whitened: exact for a loop, and where landmarks
+decide the rest, a scale read between the statement and the truth (1 + (1 - lambda)(s - 1)
+for one direction): a move never overshoots. A direction the rest decides nothing of
+(lambda = 1) says nothing of s; one across a loop closure (lambda near 0) says much. Q(s) is
+linear in the pair coefficients sqrt(s_i s_j) (`components.py`), so a window is one
+`ScaleObservation` of the odometry's six directions, valid whatever scales are in use later:
+the windows of every scale are read together.
 
 iSAM2's estimate is relinearised only where it moved: along directions the landmarks leave to
 the odometry, a window's discrepancy is about SETTLING_VARIANCE (whitened), not zero.
@@ -96,25 +104,41 @@ def drift_observation(
     lam, U = np.linalg.eigh(0.5 * (C + C.T))
     lam = np.clip(lam, 0.0, 1.0)  # the estimate knows at most what the odometry says
     GW = ((U * (1.0 - lam)) @ U.T) @ W
-    rest = (U * (lam - lam**2)) @ U.T + SETTLING_VARIANCE * np.eye(6)
+    # the rest's part, C - C Q_u^-1 C = M M^T, scaled with the odometry (see the docstring)
+    MW = ((U * np.sqrt(lam - lam**2)) @ U.T) @ W
     return ScaleObservation.made(
-        delta, 0.5 * (rest + rest.T), GW @ basis @ GW.T, pairs, np.asarray(used, dtype=float)
+        delta,
+        SETTLING_VARIANCE * np.eye(6),
+        GW @ basis @ GW.T + MW @ basis @ MW.T,
+        pairs,
+        np.asarray(used, dtype=float),
     )
 
 
 class DriftWindows:
-    """The odometry's latest steps, and the windows due: of `length` keyframes every
-    `every` keyframes, and of `long_length` (if any) every as many. A slow odometry bias drifts
-    more over a long window than white noise of the same step sigma, and the loops that must
-    close are long: long windows read it where short ones read the white part."""
+    """The odometry's steps and the windows read from them: of `length` keyframes every
+    `every` keyframes, and of `long_length` (if any) every as many, the latest `kept` of them.
+    A slow odometry bias drifts more over a long window than white noise of the same step
+    sigma, and the loops that must close are long: long windows read it where short ones read
+    the white part.
 
-    def __init__(self, length: int, long_length: int = 0):
+    The open windows are read anew at every reading, at the estimate of then: a loop closed
+    after a window ended corrects the poses inside it, and its discrepancy then says what the
+    loop says of the odometry. Read once, at its end, a window inside a loop not yet closed
+    follows the odometry and says nothing; the loops' evidence would reach only the windows
+    ending just after each closure (indoors, with few loops, the yaw's scale was learnt a
+    thousand keyframes late). `close` ends the reading of the open windows (the learner closes
+    them when the scales move)."""
+
+    def __init__(self, length: int, long_length: int = 0, kept: int = 40):
         self.length = length
         self.long_length = long_length
-        size = max(length, long_length)
-        self._steps: deque[gtsam.Pose3] = deque(maxlen=size)
-        self._adjoints: deque[np.ndarray] = deque(maxlen=size)
-        self._stated: deque[np.ndarray] = deque(maxlen=size)
+        self.windows: deque[tuple[int, int]] = deque(maxlen=kept)  # (first, last) keyframes
+        # step k goes from keyframe k to k + 1; those before the oldest window's are dropped
+        self._first_step = 0
+        self._steps: list[gtsam.Pose3] = []
+        self._adjoints: list[np.ndarray] = []
+        self._stated: list[np.ndarray] = []
 
     def add_step(self, step: gtsam.Pose3, stated: np.ndarray) -> None:
         self._steps.append(step)
@@ -126,18 +150,34 @@ class DriftWindows:
         keyframes: each length whose steps are known, every `every` keyframes or, when longer,
         every its own length, so that no two windows of one length overlap."""
         lengths = [self.length] + ([self.long_length] if self.long_length else [])
-        return [n for n in lengths if len(self._steps) >= n and pose_index % max(n, every) == 0]
+        known = self._first_step + len(self._steps)
+        return [n for n in lengths if known >= n and pose_index % max(n, every) == 0]
+
+    def open(self, pose_index: int, lengths: list[int]) -> None:
+        """Windows of `lengths` ending at keyframe `pose_index` join the open ones; the steps
+        no open window reads, nor the longest that may open next, are let go."""
+        self.windows.extend((pose_index - n, pose_index) for n in lengths)
+        longest = max(self.length, self.long_length)
+        firsts = [first for first, _ in self.windows]
+        drop = min([*firsts, pose_index - longest]) - self._first_step
+        if drop > 0:
+            del self._steps[:drop], self._adjoints[:drop], self._stated[:drop]
+            self._first_step += drop
+
+    def close(self) -> None:
+        """No open window is read again (the next to open let their steps go)."""
+        self.windows.clear()
 
     def observe(
-        self, poses: list[gtsam.Pose3], joint: np.ndarray, used: np.ndarray
+        self, first: int, poses: list[gtsam.Pose3], joint: np.ndarray, used: np.ndarray
     ) -> ScaleObservation:
-        """The window of the last len(poses) - 1 steps: the estimate's `poses` of its
-        keyframes, the (12, 12) joint covariance of its ends, the odometry at `used`."""
-        length = len(poses) - 1
-        steps = list(self._steps)[-length:]
+        """The window from keyframe `first` over len(poses) - 1 steps: the estimate's `poses`
+        of its keyframes, the (12, 12) joint covariance of its ends, the odometry at `used`."""
+        window = slice(first - self._first_step, first - self._first_step + len(poses) - 1)
+        steps = self._steps[window]
         estimated = [a.between(b) for a, b in itertools.pairwise(poses)]
-        T = transports(np.array(list(self._adjoints)[-length:]))
-        stated = np.array(list(self._stated)[-length:])
+        T = transports(np.array(self._adjoints[window]))
+        stated = np.array(self._stated[window])
         relative = poses[0].between(poses[-1])
         discrepancy = window_discrepancy(T, steps, estimated)
         return drift_observation(discrepancy, T, stated, relative, joint, used)

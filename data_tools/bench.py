@@ -1,6 +1,6 @@
 """`make bench`: speed and memory figures, printed; nothing here asserts anything about time.
 
-Parts (all by default, or `--only read,backend,victoria,isam2,mixture,viz,frontend`):
+Parts (all by default, or `--only read,backend,ratios,crowded,isam2,mixture,viz,frontend`):
 - read: `read_log` (the container, every message decoded and checked) on a 50,000-pose log
   (`simulate indoor-tags` chained, as `memory` makes it): best of three, wall and CPU time.
 - backend: known, ml, mm, mm-nh and dcsam on a `simulate kitti05-cars` log (2,761 poses, ~10,000
@@ -8,9 +8,15 @@ Parts (all by default, or `--only read,backend,victoria,isam2,mixture,viz,fronte
   and CPU time, ratio to known (CPU: the machine may be shared), to the log's real duration,
   back-end time per detection in every tenth of the log and its ratio to known's there, peak
   memory (VmHWM: each method in its own process), RMSE, landmarks.
-- victoria: Victoria Park (GTSAM's wheel ships it; converted once), known and mm-nh in
-  interleaved pairs (`--pairs`): each pair's ratio of CPU time and their median, against the
-  target of 3x (these machines share their cores: one pair is not a measurement).
+- ratios: each robust method's time over known's on the logs of the speed targets (the
+  README's session, KITTI-05-size at noise 3, the street grid at noise 4, the planar park,
+  Victoria Park converted from GTSAM's wheel), in interleaved rounds (`--pairs`, one replay of
+  each method a round): each round's ratios, wall and CPU, and their medians against the
+  targets (mm-nh <= 3x, ml and mm <= 2x). These machines share their cores: one pair is not a
+  measurement.
+- crowded: a keyframe of 1,000 detections (`crowded_log.py`, crowded on the landmarks in view
+  and spread over the view), replayed with mm-nh: wall time and peak memory, against the
+  targets of 60 s and 1 GB.
 - isam2: GTSAM's iSAM2 alone on a bare Pose3 chain, ms per update as it grows
   (`bench_isam2.py`: why a long log's last tenth costs more per keyframe than its first).
 - mixture: where the max-mixture picks its component, native factors swapped between iSAM2
@@ -179,20 +185,57 @@ def victoria_park_log(out: Path) -> Path:
     return path
 
 
-def bench_victoria(out: Path, pairs: int) -> None:
-    """Known and mm-nh on Victoria Park, alternately: the ratio of each pair and the median."""
-    log_path = victoria_park_log(out)
-    print(f"\n== Victoria Park ({log_path}): mm-nh against known, {pairs} interleaved pairs")
-    ratios = []
-    for k in range(pairs):
-        known = run_in_subprocess(log_path, "known", {})
-        robust = run_in_subprocess(log_path, "mm-nh", {})
-        ratios.append(robust["cpu_seconds"] / known["cpu_seconds"])
-        print(
-            f"  pair {k + 1}: known {known['cpu_seconds']:.1f} s, mm-nh "
-            f"{robust['cpu_seconds']:.1f} s ({robust['landmarks']} landmarks): {ratios[-1]:.2f}x"
-        )
-    print(f"median {float(np.median(ratios)):.2f}x known (target <= 3x)")
+# The logs of the speed targets: (title, scenario, options); Victoria Park's is converted.
+RATIO_LOGS = (
+    ("README session", "indoor-tags",
+     {"seed": 2, "odom_noise_scale": 4.0, "misclassification": 0.1, "true_covariance": True}),
+    ("KITTI-05-size, noise 3", "kitti05-cars", {"odom_noise_scale": 3.0}),
+    ("street grid, noise 4", "city-grid", {"odom_noise_scale": 4.0}),
+    ("planar park", "planar-park", {}),
+)  # fmt: skip
+RATIO_TARGETS = {"ml": 2.0, "mm": 2.0, "mm-nh": 3.0}
+
+
+def bench_ratios(out: Path, pairs: int, methods: tuple[str, ...]) -> None:
+    """Each method against known on each log of the speed targets, in interleaved rounds: the
+    median of the rounds' ratios, wall and CPU."""
+    logs = [(t, simulated_log(out, s, **{"seed": 0, **o})) for t, s, o in RATIO_LOGS]
+    logs.append(("Victoria Park", victoria_park_log(out)))
+    robust = [m for m in methods if m != "known"]
+    print(f"\n== time over known's, median of {pairs} interleaved rounds (wall; CPU)")
+    for title, log_path in logs:
+        ratios: dict[str, list[tuple[float, float]]] = {m: [] for m in robust}
+        for _ in range(pairs):
+            known = run_in_subprocess(log_path, "known", {})
+            for method in robust:
+                r = run_in_subprocess(log_path, method, {})
+                ratios[method].append(
+                    (r["seconds"] / known["seconds"], r["cpu_seconds"] / known["cpu_seconds"])
+                )
+        cells = []
+        for method, rounds in ratios.items():
+            wall, cpu = (float(np.median(column)) for column in zip(*rounds, strict=True))
+            target = RATIO_TARGETS.get(method)
+            cells.append(
+                f"{method} {wall:.2f}x ({cpu:.2f}x)"
+                + (f" {'within' if wall <= target else 'over'} {target:g}x" if target else "")
+            )
+        print(f"  {title} (known {known['seconds']:.1f} s): " + "; ".join(cells), flush=True)
+
+
+def bench_crowded(out: Path) -> None:
+    """mm-nh on a keyframe of 1,000 detections, crowded on the landmarks in view and spread
+    over the view: wall time and peak memory."""
+    from data_tools.crowded_log import main as crowded_log
+
+    print("\n== a keyframe of 1,000 detections, mm-nh (targets: 60 s, 1 GB)")
+    for name, options in (("crowded", []), ("spread", ["--spread"])):
+        log_path = out / f"{name}-1000.mcap"
+        if not log_path.exists():
+            crowded_log(["--detections", "1000", *options, "--out", str(log_path)])
+        r = run_in_subprocess(log_path, "mm-nh", {})
+        size = f"{r['seconds']:.1f} s, {r['peak_mb']:.0f} MB, {r['landmarks']} landmarks"
+        print(f"  {name}: {size}", flush=True)
 
 
 def time_shares(stats: pstats.Stats) -> dict[str, float]:
@@ -357,12 +400,12 @@ def bench_read(out: Path, poses: int = 50_000, repeats: int = 3) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out/bench"))
-    parser.add_argument("--only", default="read,backend,victoria,isam2,mixture,viz,frontend")
+    parser.add_argument("--only", default="read,backend,ratios,crowded,isam2,mixture,viz,frontend")
     parser.add_argument("--methods", type=method_list, default=list(BENCHED_METHODS))
     parser.add_argument(
         "--long-poses", type=int, default=10000, help="poses of the long log (default 10,000)"
     )
-    parser.add_argument("--pairs", type=int, default=3, help="victoria's pairs (default 3)")
+    parser.add_argument("--pairs", type=int, default=3, help="rounds of ratios (default 3)")
     parser.add_argument("--run-one", nargs=3, metavar=("LOG", "METHOD", "OVERRIDES"))
     parser.add_argument("--profile", metavar="METHOD", help="profile one replay (cProfile)")
     parser.add_argument(
@@ -400,8 +443,10 @@ def main(argv: list[str] | None = None) -> int:
         bench_read(args.out)
     if "backend" in parts:
         bench_backend(args.out, tuple(args.methods), args.long_poses)
-    if "victoria" in parts:
-        bench_victoria(args.out, args.pairs)
+    if "ratios" in parts:
+        bench_ratios(args.out, args.pairs, tuple(args.methods))
+    if "crowded" in parts:
+        bench_crowded(args.out)
     if "isam2" in parts:
         from data_tools import bench_isam2
 

@@ -136,7 +136,7 @@ def greedy(ps: PairSet, start: tuple[int, ...] = ()) -> tuple[list[int], float]:
 def test_a_grown_set_is_the_greedy_one(seed):
     ps = random_pair_set(seed)
     for start in [(), *((p,) for p in range(len(ps.pairs)) if admissible(ps, [p]))]:
-        chosen, score = grown_pairs(ps, CONFIDENCE, start)
+        chosen, score, _ = grown_pairs(ps, CONFIDENCE, start)
         expected, expected_score = greedy(ps, start)
         assert list(chosen) == expected
         assert score == pytest.approx(expected_score, rel=1e-9, abs=1e-9)
@@ -193,7 +193,7 @@ def test_a_seeded_rival_scores_at_least_its_pair_s_estimate():
         search = SeededSearch(ps, CONFIDENCE, seeds=3)
         for q in range(len(ps.pairs)):
             _, score, finished = search(ps, CONFIDENCE, 10, frozenset(), required=q)
-            _, grown = grown_pairs(ps, CONFIDENCE, (q,))
+            _, grown, _ = grown_pairs(ps, CONFIDENCE, (q,))
             assert finished
             assert score == pytest.approx(max(grown, search.estimates[q]), rel=1e-9)
             raised += search.estimates[q] > grown + 1e-6
@@ -237,7 +237,7 @@ def test_a_grown_set_stays_inside_the_joint_gate_of_its_size(spread):
         log_prior=np.full(3, 8.0),
         loop=np.zeros(3, bool),
     )
-    chosen, score = grown_pairs(ps, CONFIDENCE)
+    chosen, score, _ = grown_pairs(ps, CONFIDENCE)
     assert len(chosen) == 1
     assert (list(chosen), score) == (greedy(ps)[0], pytest.approx(greedy(ps)[1]))
     assert ps.score([0, 1]) > ps.score([0])  # the second pair would raise the score

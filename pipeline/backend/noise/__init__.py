@@ -9,7 +9,7 @@ applied to every stated covariance, D S D with D = diag(sqrt(s)):
 - the odometry's per body-frame direction (`ODOMETRY_AXES`: roll, pitch, yaw, forward,
   lateral, vertical), from drift windows: the odometry composed over a window against the
   estimate's relative pose of the window's ends (`drift.py`), each read anew at every reading
-  until the scales move (a loop closed later corrects the poses inside it);
+  (a loop closed later corrects the poses inside it, and a move the whole estimate);
 - a detection's per component (`MEASUREMENT_COMPONENTS`: bearing, elevation, range), from
   what each keyframe's detections disagree about at the current estimate, the pose's error
   projected out (`contrasts.py`).

@@ -122,13 +122,12 @@ class DriftWindows:
     sigma, and the loops that must close are long: long windows read it where short ones read
     the white part.
 
-    The open windows are read anew at every reading, at the estimate of then: a loop closed
+    The windows are read anew at every reading, at the estimate of then: a loop closed
     after a window ended corrects the poses inside it, and its discrepancy then says what the
     loop says of the odometry. Read once, at its end, a window inside a loop not yet closed
     follows the odometry and says nothing; the loops' evidence would reach only the windows
     ending just after each closure (indoors, with few loops, the yaw's scale was learnt a
-    thousand keyframes late). `close` ends the reading of the open windows (the learner closes
-    them when the scales move)."""
+    thousand keyframes late)."""
 
     def __init__(self, length: int, long_length: int = 0, kept: int = 40):
         self.length = length
@@ -163,10 +162,6 @@ class DriftWindows:
         if drop > 0:
             del self._steps[:drop], self._adjoints[:drop], self._stated[:drop]
             self._first_step += drop
-
-    def close(self) -> None:
-        """No open window is read again (the next to open let their steps go)."""
-        self.windows.clear()
 
     def observe(
         self, first: int, poses: list[gtsam.Pose3], joint: np.ndarray, used: np.ndarray

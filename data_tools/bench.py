@@ -66,7 +66,7 @@ def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:
     """One replay in this process: its figures, as a dict."""
     from pipeline.config import load_config
     from pipeline.log import read_log
-    from pipeline.replay import compute_metrics, keyframes, new_backend
+    from pipeline.replay import compute_metrics, keyframes, new_backend, one_blas_thread
 
     config = load_config()
     for section, values in overrides.items():
@@ -77,11 +77,12 @@ def run_one(log_path: Path, method: str, overrides: dict[str, dict]) -> dict:
     start, cpu = time.perf_counter(), time.process_time()
     backend = new_backend(log, method, config)
     detections, step_seconds = [], []
-    for odometry, dets in keyframes(log):
-        step = time.perf_counter()
-        backend.add_keyframe(odometry, dets)
-        step_seconds.append(time.perf_counter() - step)
-        detections.append(len(dets))
+    with one_blas_thread():  # as a replay runs
+        for odometry, dets in keyframes(log):
+            step = time.perf_counter()
+            backend.add_keyframe(odometry, dets)
+            step_seconds.append(time.perf_counter() - step)
+            detections.append(len(dets))
     result = backend.result()
     seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu
     metrics = compute_metrics(log, result, method, seconds)

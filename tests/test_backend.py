@@ -408,3 +408,29 @@ def test_a_keyframe_tells_its_heartbeat_what_it_is_doing(tmp_path, square_scene)
     # pose 5 is a merge check's (every 5th): it tells which source it is at
     assert any(line.startswith("pose 5: merge check, partners of source 1 of ") for line in at_5)
     assert not any("merge check" in line for line in heard if line.startswith("pose 4: "))
+
+
+def test_a_replay_runs_blas_on_one_thread(tmp_path, square_scene, monkeypatch):
+    """numpy's and scipy's BLAS, two threads each before the replay, run on one during it (the
+    back-end's small matrices: `replay.one_blas_thread`) and on two again after it."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import pipeline.replay as replay_module
+
+    def blas_threads() -> set[int]:
+        return {pool["num_threads"] for pool in threadpool_info() if pool["user_api"] == "blas"}
+
+    seen: list[set[int]] = []
+    real = Backend.add_keyframe
+
+    def spy(self, *args, **kwargs):
+        seen.append(blas_threads())
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(Backend, "add_keyframe", spy)
+    log = read_log(write_scene(tmp_path / "blas.mcap", square_scene, seed=0))
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert blas_threads() == {2}
+        replay_module.run_backend(log, "known", load_config(), replay_module.NullSink(), False)
+        assert blas_threads() == {2}
+    assert len(seen) == log.num_poses and all(threads == {1} for threads in seen)

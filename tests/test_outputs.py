@@ -408,11 +408,15 @@ def test_a_sweep_stopped_while_it_writes_its_report_leaves_one_whole_report(
         if name == at:
             os.kill(os.getpid(), how)  # as a user or a scheduler would: a real signal
 
+    # Ctrl-C as a terminal's user sends it: a suite started in the background by a shell
+    # without job control inherits SIGINT ignored, and the sweep then rightly goes on.
+    interrupts = signal.signal(signal.SIGINT, signal.default_int_handler)
     outputs.step_hook = stop
     try:
         status = main(["sweep", str(config), "--out", str(out), "--quiet"])
     finally:
         outputs.step_hook = None
+        signal.signal(signal.SIGINT, interrupts)
         found = report_set(out)
         left = temporaries(out)
         restore_report(out, old, saved)

@@ -486,12 +486,26 @@ class LoopClosingEstimate:
         return (self.truth if self.closed else self.odometry)[gtsam.Symbol(key).index()]
 
     def joint_covariance(self, keys):
-        a, b = (gtsam.Symbol(k).index() for k in keys)
+        """Closed: nothing left to know. Else the odometry's chain from the first key (known):
+        each pose's error carried along the steps, e_b = Ad(T_ab^-1) e_a + the steps' noise
+        carried to b, so that any two keys' relative pose has the odometry's own covariance."""
+        indices = [gtsam.Symbol(k).index() for k in keys]
+        n = len(indices)
+        joint = np.zeros((6 * n, 6 * n))
         if self.closed:
-            return np.zeros((12, 12))
-        joint = np.zeros((12, 12))  # the end's covariance the odometry's composed one
-        joint[6:, 6:] = (b - a) * self.stated
+            return joint
         joint[:6, :6] = 1e-12 * np.eye(6)
+        for j in range(1, n):
+            a, b = indices[j - 1], indices[j]
+            steps = [self.odometry[k].between(self.odometry[k + 1]) for k in range(a, b)]
+            T = transports(np.array([step.inverse().AdjointMap() for step in steps]))
+            carried = np.einsum("kab,bc,kdc->ad", T, self.stated, T)
+            A = self.odometry[a].between(self.odometry[b]).inverse().AdjointMap()
+            before = slice(0, 6 * j)
+            joint[before, 6 * j : 6 * j + 6] = joint[before, 6 * (j - 1) : 6 * j] @ A.T
+            joint[6 * j : 6 * j + 6, before] = joint[before, 6 * j : 6 * j + 6].T
+            previous = joint[6 * (j - 1) : 6 * j, 6 * (j - 1) : 6 * j]
+            joint[6 * j : 6 * j + 6, 6 * j : 6 * j + 6] = A @ previous @ A.T + carried
         return joint
 
 

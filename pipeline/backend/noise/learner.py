@@ -163,11 +163,16 @@ class NoiseLearner:
         start = min(first for first, _ in self.drift.windows)
         poses = [estimate.pose(X(k)) for k in range(start, pose_index + 1)]
         used = np.array(self.scales.odometry)
+        # One joint of all the windows' ends, each window's two blocks taken from it: asked
+        # window by window, the README's session spent 3.1 s in 570 of them.
+        ends = sorted({k for window in self.drift.windows for k in window})
+        joint = estimate.joint_covariance([X(k) for k in ends])
+        rows = {k: np.arange(6 * n, 6 * n + 6) for n, k in enumerate(ends)}
         return [
             self.drift.observe(
                 first,
                 poses[first - start : last - start + 1],
-                estimate.joint_covariance([X(first), X(last)]),
+                joint[np.ix_(np.r_[rows[first], rows[last]], np.r_[rows[first], rows[last]])],
                 used,
             )
             for first, last in self.drift.windows

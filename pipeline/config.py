@@ -79,6 +79,7 @@ class MergeConfig:
     enabled: bool
     every_keyframes: Keyframes
     recent_keyframes: Keyframes
+    final_check: bool
     confidence: Probability
     local_confidence: Probability
     search_sigmas: Annotated[float, positive(1000.0)]

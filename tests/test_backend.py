@@ -11,11 +11,13 @@ import pytest
 
 from pipeline import settings
 from pipeline.backend.hypotheses import NULL
+from pipeline.backend.landmarks import LandmarkKind
 from pipeline.backend.noise import MEASUREMENT_COMPONENTS, ODOMETRY_AXES
 from pipeline.backend.slam import Backend
 from pipeline.config import MIXTURE_SELECTIONS, load_config
 from pipeline.log import read_log
 from pipeline.replay import compute_metrics, keyframes, replay
+from tests.backend_cases import with_settings
 from tests.synthetic import (
     KIDNAP_POSE,
     ODOM_SIGMAS,
@@ -434,3 +436,71 @@ def test_a_replay_runs_blas_on_one_thread(tmp_path, square_scene, monkeypatch):
         replay_module.run_backend(log, "known", load_config(), replay_module.NullSink(), False)
         assert blas_threads() == {2}
     assert len(seen) == log.num_poses and all(threads == {1} for threads in seen)
+
+
+def replayed(tmp_path, scene, config) -> Backend:
+    log = read_log(write_scene(tmp_path / "final.mcap", scene, seed=0))
+    backend = Backend(config, np.asarray(log.metadata.confusion_matrix), "mm-nh")
+    for odometry, detections in keyframes(log):
+        backend.add_keyframe(odometry, detections)
+    return backend
+
+
+@pytest.mark.parametrize("taken", [1, 2, 5])
+def test_the_last_merge_check_takes_every_point_landmark_until_none_waits(
+    tmp_path, square_scene, taken
+):
+    """At the log's end every point landmark is a source, seen lately or not; a check that
+    reaches only `taken` of them leaves the others waiting for the next (`merge_remaining`)."""
+    backend = replayed(tmp_path, square_scene, load_config())
+    context = backend.context
+    asked: list[set[int]] = []
+
+    def check(pose_index, prediction, final=False):
+        assert final and pose_index == backend.num_poses - 1
+        asked.append(set(context.changed))
+        waiting = sorted(context.changed)
+        context.changed = set(waiting[taken:])  # the sources left over wait
+        return []
+
+    backend.merger.find = check
+    backend.result()
+    points = {j for j, lm in backend.landmarks.landmarks.items() if lm.kind is LandmarkKind.POINT}
+    assert len(points) > 5 and asked[0] == points
+    assert len(asked) == -(-len(points) // taken)  # ceil: each check takes `taken` more
+    backend.result()  # the log's last check is made once
+    assert len(asked) == -(-len(points) // taken)
+
+
+def test_the_last_merge_check_ends_when_a_check_neither_merges_nor_leaves_fewer(
+    tmp_path, square_scene
+):
+    backend = replayed(tmp_path, square_scene, load_config())
+    calls = []
+
+    def stuck(pose_index, prediction, final=False):
+        calls.append(pose_index)
+        return []  # `changed` kept whole: a budget too small for the first source
+
+    backend.merger.find = stuck
+    backend.result()
+    assert len(calls) == 1
+
+
+def test_the_last_merge_check_merges_and_can_be_turned_off(tmp_path, square_scene):
+    on = replayed(tmp_path, square_scene, load_config())
+    off = replayed(
+        tmp_path, square_scene, with_settings(load_config(), merges={"final_check": False})
+    )
+    # Two landmarks of the map, made one at the log's end (what the check decides is
+    # merges.py's tests').
+    survivor, duplicate = sorted(on.landmarks.landmarks)[:2]
+    picked = iter([[(duplicate, survivor)]])
+    on.merger.find = lambda *args, **kwargs: next(picked, [])
+    off.merger.find = lambda *args, **kwargs: pytest.fail("final_check is off")
+    merges_before = on.merges
+    result = on.result()
+    off.result()
+    assert duplicate not in result.landmark_ids and survivor in result.landmark_ids
+    assert on.context.held_detections(duplicate) == []
+    assert on.merges == merges_before + 1

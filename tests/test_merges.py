@@ -208,6 +208,35 @@ def test_only_landmarks_seen_lately_are_sources():
     assert sorted(pairs(context, finder)) == [(c, a), (c, a + 1)]
 
 
+def test_the_final_check_takes_the_changed_landmarks_as_sources_seen_lately_or_not():
+    context, finder = finder_context()
+    a = landmark_at(context, [0.0, 0.0, 0.0], poses=(LONG_AGO,))
+    b = landmark_at(context, [1.0, 0.0, 0.0], poses=(LONG_AGO - 1,))
+    c = landmark_at(context, [50.0, 0.0, 0.0], poses=(LONG_AGO - 2,))
+    d = landmark_at(context, [50.0, 1.0, 0.0], poses=(LONG_AGO - 3,))
+    context.changed = {a, b, c, d}
+    assert pairs(context, finder) == []  # a check at a keyframe: none was seen lately
+    context.changed = {a, b, c}  # d is near c only: c is its pair's source
+    context.solver.update()
+    assert finder.candidate_pairs(NOW, final=True) == [(b, a), (d, c)]
+    assert context.changed == set()
+
+
+def test_the_final_check_leaves_the_sources_past_max_landmarks_waiting():
+    context, finder = finder_context(max_landmarks=2)
+    a = landmark_at(context, [0.0, 0.0, 0.0], poses=(LONG_AGO,))
+    b = landmark_at(context, [1.0, 0.0, 0.0], poses=(LONG_AGO - 1,))
+    c = landmark_at(context, [50.0, 0.0, 0.0], poses=(LONG_AGO - 2,))
+    d = landmark_at(context, [50.0, 1.0, 0.0], poses=(LONG_AGO - 3,))
+    context.changed = {a, b, c, d}
+    context.solver.update()
+    # the latest seen first: a and b fill max_landmarks; c and d wait for the next check
+    assert finder.candidate_pairs(NOW, final=True) == [(b, a)]
+    assert context.changed == {c, d}
+    assert finder.candidate_pairs(NOW, final=True) == [(d, c)]
+    assert context.changed == set()
+
+
 def test_a_source_keeps_its_max_partners_nearest():
     context, finder = finder_context(max_partners=2)
     # partners seen long ago are no sources themselves: only the recent source's list counts

@@ -1,11 +1,11 @@
 """Finding landmarks to merge in the map as it stands: candidate pairs, their joint covariance
 from iSAM2, and the joint test of `joint_compatibility.py`.
 
-Sources are the point landmarks observed in the last `recent_keyframes` keyframes; each is
-paired with the landmarks near it (spatial index, then a cheap covariance bound) that the
-detector's classes allow and that were never detected in the same keyframe as it (two objects
-seen at once are two objects). One joint marginal over every landmark in a pair gives the
-covariance of all the differences together.
+Sources are the point landmarks observed in the last `recent_keyframes` keyframes (at the log's
+end, every point landmark: `final_check`); each is paired with the landmarks near it (spatial
+index, then a cheap covariance bound) that the detector's classes allow and that were never
+detected in the same keyframe as it (two objects seen at once are two objects). One joint
+marginal over every landmark in a pair gives the covariance of all the differences together.
 """
 
 from __future__ import annotations
@@ -172,23 +172,26 @@ class MergeFinder:
         # could be a duplicate of.
         self._in_view = (0, 0)  # (landmarks, checks)
 
-    def sources(self, pose_index: int) -> list[int]:
+    def sources(self, pose_index: int, final: bool = False) -> list[int]:
         """Point landmarks seen lately, if any landmark was seen or moved since the last check
         (else nothing can have changed); the context's `changed` set is emptied. All the
-        recent ones, not only the changed: a loop closure's evidence is their agreement."""
+        recent ones, not only the changed: a loop closure's evidence is their agreement.
+        `final`: the point landmarks of `changed` instead, seen lately or not."""
         if not self.context.changed:
             return []
-        self.context.changed = set()
+        changed, self.context.changed = self.context.changed, set()
         lms = self.context.landmarks.landmarks
-        return sorted(
-            j
-            for j in self.context.last_seen
-            if self.context.seen_lately(j, pose_index)
-            and j in lms
-            and lms[j].kind is LandmarkKind.POINT
-        )
+        if final:
+            candidates = changed
+        else:
+            candidates = {
+                j for j in self.context.last_seen if self.context.seen_lately(j, pose_index)
+            }
+        return sorted(j for j in candidates if j in lms and lms[j].kind is LandmarkKind.POINT)
 
-    def candidate_pairs(self, pose_index: int, widest: float = 1.0) -> list[tuple[int, int]]:
+    def candidate_pairs(
+        self, pose_index: int, widest: float = 1.0, final: bool = False
+    ) -> list[tuple[int, int]]:
         """(source, target) pairs that may be one landmark, by cheap tests only: each source's
         `max_partners` nearest (by the bound's distance), and sources, the most recently seen
         first, only while the pairs hold at most `max_landmarks` landmarks (one joint
@@ -197,9 +200,10 @@ class MergeFinder:
         over are searched at the next check). `widest`: the largest drift scale a loop is
         tested at, relative to the map's covariance. A source's partners are looked for only
         when its turn comes, so a keyframe that started thousands of landmarks costs the
-        budget's worth of searches, not thousands."""
+        budget's worth of searches, not thousands. `final`: the sources are those of `changed`
+        (`sources`), and the ones left over go back to it."""
         context, c = self.context, self.config
-        sources = self.sources(pose_index)
+        sources = self.sources(pose_index, final)
         if not sources:
             return []
         # A loop's partner may be as far as the `widest` drift scale tested puts it.
@@ -222,6 +226,8 @@ class MergeFinder:
             mine = {(min(a, b), max(a, b)) for b in partners} - pairs
             more = {j for pair in mine for j in pair} - involved
             if len(involved) + len(more) > c.max_landmarks:
+                if final:
+                    context.changed.update(ordered[turn:])
                 break
             pairs |= mine
             involved |= more
@@ -258,15 +264,18 @@ class MergeFinder:
         """The landmark's marginal covariance, or an upper bound on it (`covariance_bound`)."""
         return covariance_bound(self.context.solver, self.context.landmarks, landmark_id)
 
-    def find(self, pose_index: int, prediction: PosePrediction) -> list[tuple[int, int]]:
+    def find(
+        self, pose_index: int, prediction: PosePrediction, final: bool = False
+    ) -> list[tuple[int, int]]:
         """(duplicate, survivor) pairs to merge now, at the keyframe predicted by `prediction`
         (where the sensor looks from). A loop's test weighs a drift larger than the map's
         covariance holds by what the loops closed so far say (`DriftScaleBelief`), up to
-        `max_drift_scale` times it, and what it closes is added to that."""
+        `max_drift_scale` times it, and what it closes is added to that. `final`: the sources
+        are the landmarks of the context's `changed` set (`candidate_pairs`)."""
         c = self.config
         drift_scales = self.drift_belief.scales, self.drift_belief.log_weights
         widest = float(np.max(drift_scales[0]))
-        candidates = self.candidate_pairs(pose_index, widest)
+        candidates = self.candidate_pairs(pose_index, widest, final)
         if not candidates:
             return []
         context = self.context

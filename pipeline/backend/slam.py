@@ -7,7 +7,9 @@ result = backend.result()
 
 Each keyframe is one story (`add_keyframe`): predict the new pose from the odometry, score the
 landmarks each detection could be, associate (the method's step), update iSAM2, settle the
-associations the update moved, merge duplicated landmarks, learn the noise, and report.
+associations the update moved, merge duplicated landmarks, learn the noise, and report. At the
+log's end (`result`), a last merge check takes every point landmark as a source
+(`[merges] final_check`).
 """
 
 from __future__ import annotations
@@ -123,6 +125,7 @@ class Backend:
         self.num_poses = 0
         self.switches = 0
         self.merges = 0
+        self._finished = False
         # (pose, detection) -> landmark as last reported: refine's rounds may switch a record
         # away and back within one keyframe, which is no change.
         self._reported: dict[tuple[int, int], int] = {}
@@ -214,11 +217,14 @@ class Backend:
         pose_index = prediction.pose_index
         if self.merger is None or pose_index % self.config.merges.every_keyframes:
             return []
-        merged = self.merger.find(pose_index, prediction)
-        for duplicate, survivor in merged:
+        return self._merged(self.merger.find(pose_index, prediction))
+
+    def _merged(self, pairs: list[tuple[int, int]]) -> list[tuple[int, int]]:
+        """Each (duplicate, survivor) of `pairs` merged, pending in iSAM2; the pairs."""
+        for duplicate, survivor in pairs:
             self.method.merge(survivor, duplicate)
-        self.merges += len(merged)
-        return merged
+        self.merges += len(pairs)
+        return pairs
 
     def learn_noise(self, pose_index: int) -> bool:
         """The noise scales learnt anew; whether they moved (every factor of a kind that moved
@@ -340,7 +346,31 @@ class Backend:
         covariance = self.noise.scales.odometry_covariance(np.reshape(odometry.covariance, (6, 6)))
         return self.solver.add(odometry_factor(X(k), X(k + 1), odometry, covariance)), covariance
 
+    def merge_remaining(self) -> None:
+        """The log's last merge check: every point landmark a source, seen lately or not (a
+        duplicate started while the odometry had drifted lies on its original once a loop
+        closed elsewhere corrects the map), in as many checks as the budgets take. Each check
+        merges something or leaves fewer sources waiting, so that it ends."""
+        if self.merger is None or not self.config.merges.final_check or self.num_poses == 0:
+            return
+        k = self.num_poses - 1
+        here = PosePrediction(k, X(k), self.solver.pose(X(k)), np.eye(6), np.zeros((6, 6)))
+        context = self.context
+        points = self.landmarks.landmarks.items()
+        context.changed = {j for j, lm in points if lm.kind is LandmarkKind.POINT}
+        while context.changed:
+            waiting = len(context.changed)
+            merged = self._merged(self.merger.find(k, here, final=True))
+            if merged:
+                self.settle(self.solver.update())
+            elif len(context.changed) >= waiting:
+                break
+
     def result(self) -> BackendResult:
+        """The estimate at the log's end (its last merge check made first, once)."""
+        if not self._finished:
+            self._finished = True
+            self.merge_remaining()
         self.method.finish()
         values = self.solver.estimate()
         poses = [values.atPose3(X(i)) for i in range(self.num_poses)]

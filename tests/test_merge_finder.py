@@ -102,6 +102,24 @@ def test_a_loop_the_drift_explains_closes_and_teaches_the_drift():
     assert np.max(np.abs(merge_finder.drift_belief.log_weights - before)) > 1e-3
 
 
+@pytest.mark.parametrize(("d2", "merged"), [(0.5, True), (10.0, False)])
+def test_the_final_check_pairs_landmarks_seen_long_ago_as_the_map_stands(d2, merged):
+    """Both landmarks seen long ago: a check at a keyframe leaves them; the log's last one
+    tests them at the map's covariance. d^2 = 0.5 merges; d^2 = 10, which a loop's drift lets
+    through, does not. The drift belief is left as it was: no test follows."""
+    context, merge_finder = finder()
+    offset = math.sqrt(d2 * 2 * 0.01**2)
+    old = landmark(context, [5.0, 0.0, 0.0], 0.01, [LONG_AGO])
+    new = landmark(context, [5.0 + offset, 0.0, 0.0], 0.01, [LONG_AGO + 1])
+    assert find(context, merge_finder) == []
+    before = merge_finder.drift_belief.log_weights.copy()
+    context.changed = {old, new}
+    prediction = PosePrediction(NOW, X(NOW - 1), gtsam.Pose3(), np.eye(6), np.zeros((6, 6)))
+    assert merge_finder.find(NOW, prediction, final=True) == ([(new, old)] if merged else [])
+    assert merge_finder.drift_belief.loops == 0
+    np.testing.assert_array_equal(merge_finder.drift_belief.log_weights, before)
+
+
 @pytest.mark.parametrize(("last_seen", "merged"), [(LATELY - 3, True), (LONG_AGO, False)])
 def test_a_loop_pair_must_reach_loop_log_odds_where_a_local_one_needs_local(last_seen, merged):
     """Landmarks known to 0.3 m, 2 cm apart: the pair scores about 6.8, above local_log_odds

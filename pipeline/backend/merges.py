@@ -2,9 +2,10 @@
 from iSAM2, and the joint test of `joint_compatibility.py`.
 
 Sources are the point landmarks observed in the last `recent_keyframes` keyframes (at the log's
-end, every point landmark: `final_check`); each is paired with the landmarks near it (spatial
-index, then a cheap covariance bound) that the detector's classes allow and that were never
-detected in the same keyframe as it (two objects seen at once are two objects). One joint
+end, every point landmark, its pairs tested at the map's covariance: `final_check`); each is
+paired with the landmarks near it (spatial index, then a cheap covariance bound) that the
+detector's classes allow and that were never detected in the same keyframe as it (two objects
+seen at once are two objects). One joint
 marginal over every landmark in a pair gives the covariance of all the differences together.
 """
 
@@ -270,10 +271,14 @@ class MergeFinder:
         """(duplicate, survivor) pairs to merge now, at the keyframe predicted by `prediction`
         (where the sensor looks from). A loop's test weighs a drift larger than the map's
         covariance holds by what the loops closed so far say (`DriftScaleBelief`), up to
-        `max_drift_scale` times it, and what it closes is added to that. `final`: the sources
-        are the landmarks of the context's `changed` set (`candidate_pairs`)."""
+        `max_drift_scale` times it, and what it closes is added to that. `final` (the log's
+        last check): the sources are the landmarks of the context's `changed` set
+        (`candidate_pairs`), and the pairs are tested as the map stands, at its covariance."""
         c = self.config
-        drift_scales = self.drift_belief.scales, self.drift_belief.log_weights
+        if final:  # the map as it stands: the loops it could close are closed
+            drift_scales = np.ones(1), np.zeros(1)
+        else:
+            drift_scales = self.drift_belief.scales, self.drift_belief.log_weights
         widest = float(np.max(drift_scales[0]))
         candidates = self.candidate_pairs(pose_index, widest, final)
         if not candidates:
@@ -371,7 +376,7 @@ class MergeFinder:
                 budget,
             )
             closed = [pair_set.pairs.index(pair) for pair in to_merge]
-            if any(pair_set.loop[p] for p in closed):  # what this loop says of the drift
+            if not final and any(pair_set.loop[p] for p in closed):  # what it says of the drift
                 self.drift_belief.observe(pair_set.scale_log_likelihoods(closed)[0])
             merged += to_merge
         return merged

@@ -12,9 +12,11 @@ from pipeline.backend.joint_compatibility import (
     PairSet,
     SeededSearch,
     best_pairs,
+    difference_blocks,
     difference_covariance,
     drift_directions,
     grown_pairs,
+    loop_drift_directions,
     pairs_to_merge,
 )
 from pipeline.backend.merges import pair_groups, with_detection_noise
@@ -46,6 +48,36 @@ def test_difference_covariance_hand_computed():
     C = np.block([[np.eye(3), 0.5 * np.eye(3)], [0.5 * np.eye(3), 4 * np.eye(3)]])
     D = difference_covariance(C, [(0, 1)], {0: 0, 1: 1}, 3)
     np.testing.assert_allclose(D, np.eye(3) * (1 + 4 - 2 * 0.5))
+
+
+def test_difference_blocks_are_the_joint_covariance_diagonal_blocks_to_the_bit():
+    rng = np.random.default_rng(4)
+    M = rng.normal(size=(18, 18))
+    C = M @ M.T + 1e-9 * rng.normal(size=(18, 18))  # not exactly symmetric, as no marginal is
+    pairs = [(5, 2), (7, 2), (3, 9), (9, 7)]
+    slots = {j: k for k, j in enumerate([2, 3, 4, 5, 7, 9])}
+    joint = difference_covariance(C, pairs, slots, 3)
+    blocks = difference_blocks(C, pairs, slots, 3)
+    for p in range(len(pairs)):
+        rows = slice(3 * p, 3 * p + 3)
+        assert blocks[p].tobytes() == joint[rows, rows].tobytes()
+
+
+def test_loop_drift_directions_from_the_loop_pairs_alone_are_the_same_to_the_bit():
+    rng = np.random.default_rng(5)
+    sources = rng.normal(size=(5, 3)) * 10.0
+    loop = np.array([True, False, True, True, False])
+    M = rng.normal(size=(15, 15))
+    covariance = M @ M.T
+    rows = np.repeat(loop, 3)
+    G = loop_drift_directions(sources, loop, covariance[np.ix_(rows, rows)])
+    assert G.tobytes() == drift_directions(sources, loop, covariance).tobytes()
+
+
+def test_sets_rows_are_each_pairs_rows_in_order():
+    ps = pair_set([(5, 2), (7, 2), (3, 9)], np.zeros((3, 3)), independent(5, 0.1))
+    rows = ps._rows(np.array([[2, 0], [1, 2]]))
+    np.testing.assert_array_equal(rows, [[6, 7, 8, 0, 1, 2], [3, 4, 5, 6, 7, 8]])
 
 
 def test_score_of_one_pair_hand_computed():

@@ -61,3 +61,15 @@ def test_a_withdrawn_landmark_is_no_candidate_until_it_is_held_again():
     assert sorted(landmarks.landmarks) == [a] and not landmarks.withdrawn
     with pytest.raises(KeyError):  # only a withdrawn landmark is discarded
         landmarks.discard(a)
+
+
+def test_positions_in_one_gather_are_each_landmarks_position():
+    rng = np.random.default_rng(3)
+    lms = LandmarkMap(num_classes=2, cell_size=1.0)
+    ids = [lms.create(LandmarkKind.POINT, rng.normal(size=3) * 5.0).id for _ in range(6)]
+    lms.move(ids[2], np.array([0.1, 0.2, 0.3]))
+    lms.merge(ids[4], ids[0])
+    kept = [ids[5], ids[2], ids[0]]
+    gathered = lms.positions(LandmarkKind.POINT, kept)
+    assert gathered.tobytes() == np.array([lms.position(j) for j in kept]).tobytes()
+    assert lms.positions(LandmarkKind.POINT, []).shape == (0, 3)

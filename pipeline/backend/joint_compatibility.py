@@ -71,9 +71,9 @@ class PairSet:
     def dim(self) -> int:
         return self.differences.shape[1]
 
-    def _index(self, chosen: list[int]) -> np.ndarray:
-        d = self.dim
-        return np.concatenate([np.arange(p * d, (p + 1) * d) for p in chosen])
+    def _rows(self, sets: np.ndarray) -> np.ndarray:
+        """(k, m): the covariance rows of each set of pairs of `sets` (k, n), pair by pair."""
+        return (sets[:, :, None] * self.dim + np.arange(self.dim)).reshape(len(sets), -1)
 
     def scaled_covariances(self, index: np.ndarray) -> np.ndarray:
         """(scales, m, m): the covariance of the rows `index` under each scale."""
@@ -100,9 +100,10 @@ class PairSet:
         Z^T Z = V diag(lambda) V^T, and w = V^T Z^T y,
         d^T C_c^-1 d = |y|^2 - sum (c - 1) w^2 / (1 + (c - 1) lambda) and
         log det C_c = log det C + sum log(1 + (c - 1) lambda)."""
-        index = np.array([self._index(chosen) for chosen in sets])  # (k, m)
+        chosen = np.array(sets, dtype=int).reshape(len(sets), -1)  # (k, n)
+        index = self._rows(chosen)  # (k, m)
         L = np.linalg.cholesky(self.covariance[index[:, :, None], index[:, None, :]])
-        d = self.differences[np.array(sets)].reshape(len(sets), -1)  # (k, m)
+        d = self.differences[chosen].reshape(len(sets), -1)  # (k, m)
         log_det = 2.0 * np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=1)  # (k,)
         log_det = np.repeat(log_det[:, None], len(self.scales), axis=1)  # (k, scales)
         if self.drift is None:
@@ -159,12 +160,23 @@ def drift_directions(
     sources: np.ndarray, loop: np.ndarray, covariance: np.ndarray
 ) -> np.ndarray | None:
     """G (P 3, 6) such that G G^T is the part of the differences' `covariance` (P 3, P 3) that
-    one rigid correction of the recent map explains: the odometry's drift since the old
-    landmarks were seen moves every recent landmark (the `sources` (P, 3) of the loop pairs)
-    by a small rotation about their centroid and a translation, which leaves a pair of two
-    recent landmarks alike. A the correction's Jacobian (zero rows for pairs that close no
-    loop), its covariance as the loop rows state it is A+ C A+^T, and G = A (A+ C A+^T)^1/2.
-    None without loop pairs."""
+    one rigid correction of the recent map explains (`loop_drift_directions`, given the loop
+    pairs' rows of it). None without loop pairs."""
+    rows = np.repeat(np.asarray(loop, dtype=bool), 3)
+    return loop_drift_directions(sources, loop, covariance[np.ix_(rows, rows)])
+
+
+def loop_drift_directions(
+    sources: np.ndarray, loop: np.ndarray, loop_covariance: np.ndarray
+) -> np.ndarray | None:
+    """`drift_directions` from the covariance of the loop pairs' differences alone (L 3, L 3),
+    in their order: a check's other pairs need none of their cross terms formed.
+
+    The odometry's drift since the old landmarks were seen moves every recent landmark (the
+    `sources` (P, 3) of the loop pairs) by a small rotation about their centroid and a
+    translation, which leaves a pair of two recent landmarks alike. A the correction's
+    Jacobian (zero rows for pairs that close no loop), its covariance as the loop rows state it
+    is A+ C A+^T, and G = A (A+ C A+^T)^1/2. None without loop pairs."""
     loop = np.asarray(loop, dtype=bool)
     if not loop.any():
         return None
@@ -175,7 +187,7 @@ def drift_directions(
     A = A.reshape(-1, 6)
     rows = np.repeat(loop, 3)
     pinv = np.linalg.pinv(A[rows])
-    correction = pinv @ covariance[np.ix_(rows, rows)] @ pinv.T
+    correction = pinv @ loop_covariance @ pinv.T
     values, vectors = np.linalg.eigh(0.5 * (correction + correction.T))
     return A @ (vectors * np.sqrt(np.clip(values, 0.0, None)))
 
@@ -192,6 +204,23 @@ def difference_covariance(
     cov = landmark_covariance
     C = cov[np.ix_(a, a)] - cov[np.ix_(a, b)] - cov[np.ix_(b, a)] + cov[np.ix_(b, b)]
     return 0.5 * (C + C.T)
+
+
+def difference_blocks(
+    landmark_covariance: np.ndarray, pairs: list[tuple[int, int]], slots: dict[int, int], dim: int
+) -> np.ndarray:
+    """(P, dim, dim): the diagonal blocks of `difference_covariance`, the same numbers, without
+    the (P dim, P dim) matrix: a check gates each pair on its own block first."""
+    offsets = np.arange(dim)
+    a = np.array([slots[x] for x, _ in pairs], dtype=int)[:, None] * dim + offsets  # (P, dim)
+    b = np.array([slots[y] for _, y in pairs], dtype=int)[:, None] * dim + offsets
+    cov = landmark_covariance
+
+    def block(rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        return cov[rows[:, :, None], columns[:, None, :]]
+
+    C = block(a, a) - block(a, b) - block(b, a) + block(b, b)
+    return 0.5 * (C + np.swapaxes(C, 1, 2))
 
 
 class _Search:

@@ -70,6 +70,10 @@ class SpatialHash:
             self._table = grown
         self._table[item] = position
 
+    def table(self, items: list[int]) -> np.ndarray:
+        """(n, 3): the positions of `items`, each in the index (a gather of the same numbers)."""
+        return self._table[np.asarray(items, dtype=int).reshape(-1)]
+
     def remove(self, item: int) -> None:
         cell = self._where.pop(item)
         self._cells[cell].discard(item)
@@ -181,6 +185,10 @@ class LandmarkMap:
 
     def position(self, landmark_id: int) -> np.ndarray:
         return self._index[self.landmarks[landmark_id].kind].positions[landmark_id]
+
+    def positions(self, kind: LandmarkKind, ids: list[int]) -> np.ndarray:
+        """(n, 3): `position` of each of `ids`, all of `kind` and in its index, in one gather."""
+        return self._index[kind].table(ids)
 
     def near(self, kind: LandmarkKind, center: np.ndarray, radius: float) -> list[int]:
         return self._index[kind].query(center, radius)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 
 import numpy as np
 from gtsam.symbol_shorthand import L
@@ -24,8 +25,9 @@ from pipeline.backend.decisions import MeasurementSpace, in_view
 from pipeline.backend.geometry import world_point_covariance
 from pipeline.backend.joint_compatibility import (
     PairSet,
+    difference_blocks,
     difference_covariance,
-    drift_directions,
+    loop_drift_directions,
     pairs_to_merge,
 )
 from pipeline.backend.landmarks import LandmarkKind
@@ -89,6 +91,19 @@ def pair_groups(pairs: list[tuple[int, int]], loop: list[bool]) -> list[list[int
     return list(groups.values())
 
 
+class _Sightings(dict[int, set[int]]):
+    """Per landmark, the keyframes of its detections (`observed_at`), looked up the first
+    time it is asked for: a check asks of the same landmarks for source after source."""
+
+    def __init__(self, observed_at: Callable[[int], set[int]]):
+        super().__init__()
+        self.observed_at = observed_at
+
+    def __missing__(self, j: int) -> set[int]:
+        self[j] = seen = self.observed_at(j)
+        return seen
+
+
 class _PartnerSearch:
     """A merge check's cheap search for each source's partners: mapped point landmarks within
     reach, classes agreeing, never seen in the same keyframe, within the gate of the two
@@ -104,12 +119,7 @@ class _PartnerSearch:
         self.gate = gate
         self.widest = widest
         self.marginals = marginals  # new marginals the check may still compute
-        self._seen_at: dict[int, set[int]] = {}
-
-    def seen_at(self, j: int) -> set[int]:
-        if j not in self._seen_at:
-            self._seen_at[j] = self.finder.context.observed_at(j)
-        return self._seen_at[j]
+        self.sightings = _Sightings(finder.context.observed_at)
 
     def _afford(self, ids: list[int]) -> bool:
         """Whether the bounds of `ids` are cached or within the marginals left; if so, they
@@ -137,19 +147,21 @@ class _PartnerSearch:
         agrees = classes @ lms.landmarks[a].class_probabilities >= c.min_class_agreement
         # Two landmarks seen in the same keyframe are two landmarks (tested before the bounds:
         # a crowded keyframe's own landmarks need none).
+        seen_a, sightings = self.sightings[a], self.sightings
         near = [
             b
             for b, agree in zip(near, agrees, strict=True)
-            if agree and not self.seen_at(a) & self.seen_at(b)
+            if agree and seen_a.isdisjoint(sightings[b])
         ]
         if not near:
             return []
         if not self._afford(near):
             return None
-        offsets = position - np.array([lms.position(b) for b in near]).reshape(-1, DIM)
+        offsets = position - lms.positions(LandmarkKind.POINT, near)
         spreads = 2.0 * (bound(a) + np.array([bound(b) for b in near]).reshape(-1, DIM, DIM))
         d2 = assoc.mahalanobis_squared_batch(offsets, spreads)
-        found = [(float(d), b) for b, d in zip(near, d2, strict=True) if d <= self.gate]
+        inside = np.flatnonzero(d2 <= self.gate)
+        found = list(zip(d2[inside].tolist(), np.array(near)[inside].tolist(), strict=True))
         return [b for _, b in sorted(found)[: c.max_partners]]
 
 
@@ -293,8 +305,11 @@ class MergeFinder:
         # Two landmarks both seen lately that were not associated are the association gate's
         # tail, so their merge gate is the wider local_confidence; one seen long ago would close
         # a loop, and its pair passes at confidence under the widest drift the test allows.
-        covariance = difference_covariance(joint, candidates, slots, DIM)
+        # Of the differences' joint covariance only what the check uses is formed: each pair's
+        # own block, the loop pairs' together (the drift's) and each group's; the cross terms
+        # of pairs tested apart are most of it when a long drift lets many pairs in.
         closes = np.array([not context.seen_lately(b, pose_index) for _, b in candidates])
+        noise: dict[int, np.ndarray] = {}  # by candidate: its detection's noise
         if c.local_detection_noise:
             split = [
                 p
@@ -302,13 +317,20 @@ class MergeFinder:
                 if min(len(context.held_detections(j)) for j in candidates[p])
                 >= MIN_SPLIT_DETECTIONS
             ]
-            if split:
-                noise = [self._latest_detection_noise(candidates[p][0], estimates) for p in split]
-                covariance = with_detection_noise(covariance, np.array(split), np.array(noise))
+            noise = {
+                int(p): self._latest_detection_noise(candidates[p][0], estimates) for p in split
+            }
+        blocks = difference_blocks(joint, candidates, slots, DIM)
+        for p, block in noise.items():
+            blocks[p] += block
         sources = np.array([positions[a] for a, _ in candidates])
-        drift = drift_directions(sources, closes, covariance)
+        loops = [candidates[p] for p in np.flatnonzero(closes)]
+        drift = (
+            loop_drift_directions(sources, closes, difference_covariance(joint, loops, slots, DIM))
+            if loops
+            else None
+        )
         P = len(candidates)
-        blocks = covariance.reshape(P, DIM, P, DIM)[np.arange(P), :, np.arange(P), :]
         if drift is not None:  # the widest drift the loop's test allows
             G = drift.reshape(P, DIM, -1)
             blocks = blocks + (widest - 1.0) * (G @ G.transpose(0, 2, 1))
@@ -351,12 +373,18 @@ class MergeFinder:
             context.heartbeat(f"merge check, pair group {k + 1} of {len(groups)}")
             chosen = [pairs[p] for p in group]
             rows = np.concatenate([np.arange(kept[p] * DIM, (kept[p] + 1) * DIM) for p in group])
+            split = [i for i, p in enumerate(group) if kept[p] in noise]  # rows in the group
+            covariance = with_detection_noise(
+                difference_covariance(joint, chosen, slots, DIM),
+                np.array(split, dtype=int),
+                np.array([noise[kept[group[i]]] for i in split]),
+            )
             closes_loop = any(loop[p] for p in group)
             scales, log_weights = drift_scales if closes_loop else (np.ones(1), np.zeros(1))
             pair_set = PairSet(
                 pairs=chosen,
                 differences=differences[group],
-                covariance=covariance[np.ix_(rows, rows)],
+                covariance=covariance,
                 log_prior=log_prior[group],
                 loop=np.array([loop[p] for p in group]),
                 alike=alike,

@@ -14,7 +14,8 @@ import numpy as np
 LOG_2PI = math.log(2.0 * math.pi)
 
 
-@lru_cache(maxsize=32)
+# A search asks the gate of every set size up to its number of sources: room for them all.
+@lru_cache(maxsize=4096)
 def chi2_gate(dof: int, confidence: float) -> float:
     """Squared Mahalanobis distance below which a candidate passes the gate."""
     from scipy.special import chdtri  # the chi-square quantile, without importing scipy.stats

@@ -131,8 +131,78 @@ class PairSet:
 
     def log_likelihoods(self, sets: list[list[int]]) -> tuple[np.ndarray, np.ndarray]:
         """`log_likelihood` of several non-empty sets of pairs of one size, (sets,) each."""
-        log_lik, d2 = self.scale_log_likelihoods_of(sets)
+        return self.mixed(*self.scale_log_likelihoods_of(sets))
+
+    def mixed(self, log_lik: np.ndarray, d2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(the mixture over the scales, the smallest distance) of (sets, scales) each."""
         return np.logaddexp.reduce(self.log_scale_weights + log_lik, axis=1), np.min(d2, axis=1)
+
+    @property
+    def _growth(self) -> np.ndarray:
+        """c - 1 of each scale the arithmetic tells apart: without a drift every scale's
+        covariance is C, and one serves them all."""
+        return self.scales - 1.0 if self.drift is not None else np.zeros(1)
+
+    @cached_property
+    def _scaled_blocks(self) -> np.ndarray:
+        """(S, P, d, d): each pair's own block of C_c under each scale `_growth` tells apart."""
+        blocks = _pair_blocks(self.covariance, np.arange(len(self.pairs)), self.dim)[None]
+        if self.drift is None:
+            return blocks
+        G = self.drift.reshape(len(self.pairs), self.dim, -1)
+        return blocks + self._growth[:, None, None, None] * (G @ np.swapaxes(G, 1, 2))[None]
+
+    def empty_factor(self) -> SetFactor:
+        """The `SetFactor` of no pairs, where a search starts."""
+        S = len(self._growth)
+        return SetFactor(
+            np.zeros(0, dtype=int), np.zeros((S, 0, 0)), np.zeros((S, 0)), np.zeros(S),
+            np.zeros(S),
+        )  # fmt: skip
+
+    def extensions(self, factor: SetFactor, new: list[int]) -> Extensions:
+        """The set of `factor` extended by each pair of `new` in turn (a search's children),
+        scored as `scale_log_likelihoods_of` scores them, but from the parent's factor: under
+        scale c, with L the parent's factor, W = L^-1 and y = W d its whitened differences,
+        a child's factor is [[L, 0], [B^T, L_n]], B = W C_c[set, new], L_n the Cholesky factor
+        of C_c[new, new] - B^T B, and its new whitened rows are L_n^-1 (d_new - B^T y). So a
+        child costs O(m^2 d) (m the parent's rows), not the O(m^3) of factoring its
+        covariance again."""
+        d, m, k = self.dim, len(factor.rows), len(new)
+        new_pairs = np.asarray(new, dtype=int)
+        new_rows = (new_pairs[:, None] * d + np.arange(d)).ravel()  # (k d,)
+        S = len(factor.d2)
+        if m:
+            across = self.covariance[factor.rows][:, new_rows]  # (m, k d)
+            if self.drift is not None:
+                shared = self.drift[factor.rows] @ self.drift[new_rows].T
+                across = across[None] + self._growth[:, None, None] * shared[None]
+            B = factor.inverse @ across  # (S, m, k d)
+            B = np.swapaxes(B.reshape(S, m, k, d), 1, 2)  # (S, k, m, d)
+            schur = self._scaled_blocks[:, new_pairs] - np.swapaxes(B, -1, -2) @ B
+            rest = self.differences[new_pairs] - np.einsum("skmi,sm->ski", B, factor.whitened)
+        else:  # the first pair of a set: its own block and difference
+            B = np.zeros((S, k, 0, d))
+            schur = self._scaled_blocks[:, new_pairs]  # (S, k, d, d)
+            rest = np.broadcast_to(self.differences[new_pairs], (S, k, d))
+        L_new = np.linalg.cholesky(schur)
+        y_new = np.empty((S, k, d))  # L_new^-1 rest, row by row (d is small)
+        for i in range(d):
+            row = rest[..., i]
+            for j in range(i):
+                row = row - L_new[..., i, j] * y_new[..., j]
+            y_new[..., i] = row / L_new[..., i, i]
+        d2 = factor.d2[:, None] + np.sum(y_new**2, axis=2)
+        log_det = factor.log_det[:, None] + 2.0 * np.sum(
+            np.log(np.diagonal(L_new, axis1=2, axis2=3)), axis=2
+        )
+        log_lik = -0.5 * (d2 + log_det + (m + d) * LOG_2PI)
+        S = len(self.scales)  # one column a scale, as `scale_log_likelihoods_of` gives them
+        return Extensions(
+            factor, new_rows.reshape(k, d), B, L_new, y_new, d2, log_det,
+            np.broadcast_to(log_lik.T, (k, S)) if len(log_lik) < S else log_lik.T,
+            np.broadcast_to(d2.T, (k, S)) if len(d2) < S else d2.T,
+        )  # fmt: skip
 
     def score(self, chosen: list[int]) -> float:
         chosen = list(chosen)
@@ -148,12 +218,53 @@ class PairSet:
         jitter = 1e-9 * max(float(np.trace(self.covariance)) / n, 1e-12)
         precision = np.linalg.inv(self.covariance + jitter * np.eye(n))
         d = self.dim
-        gains = np.empty(len(self.pairs))
-        for p in range(len(self.pairs)):
-            block = precision[p * d : (p + 1) * d, p * d : (p + 1) * d]
-            _, log_det = np.linalg.slogdet(block)
-            gains[p] = 0.5 * (log_det - d * LOG_2PI) + self.log_prior[p]
+        _, log_det = np.linalg.slogdet(_pair_blocks(precision, np.arange(len(self.pairs)), d))
+        gains = 0.5 * (log_det - d * LOG_2PI) + self.log_prior
         return np.maximum(gains, 0.0)
+
+
+@dataclass(frozen=True)
+class SetFactor:
+    """A set of pairs' stacked differences whitened under each scale a `PairSet` tells apart
+    (S of them): what a search extends by one pair at a time (`PairSet.extensions`)."""
+
+    rows: np.ndarray  # (m,): the set's covariance rows, pair by pair
+    inverse: np.ndarray  # (S, m, m): L_c^-1, L_c the lower Cholesky factor of C_c's rows
+    whitened: np.ndarray  # (S, m): L_c^-1 d
+    d2: np.ndarray  # (S,): d^T C_c^-1 d
+    log_det: np.ndarray  # (S,): log det C_c
+
+
+@dataclass(frozen=True)
+class Extensions:
+    """A `SetFactor` extended by each of k pairs: their scores, and what each child's own
+    factor is built from (`child`) when the search goes down to it."""
+
+    parent: SetFactor
+    new_rows: np.ndarray  # (k, d)
+    B: np.ndarray  # (S, k, m, d): L_c^-1 C_c[set, new]
+    L_new: np.ndarray  # (S, k, d, d): the Cholesky factor of the new rows given the set
+    y_new: np.ndarray  # (S, k, d)
+    d2_of: np.ndarray  # (S, k)
+    log_det_of: np.ndarray  # (S, k)
+    log_lik: np.ndarray  # (k, scales): as `PairSet.scale_log_likelihoods_of`
+    d2: np.ndarray  # (k, scales)
+
+    def child(self, j: int) -> SetFactor:
+        """The factor of the parent's set and the j-th new pair: [[W, 0], [-L_n^-1 B^T W,
+        L_n^-1]] its inverse, W the parent's."""
+        parent, m = self.parent, len(self.parent.rows)
+        S, d = self.L_new.shape[0], self.new_rows.shape[1]
+        W, L_n_inverse = parent.inverse, np.linalg.inv(self.L_new[:, j])
+        inverse = np.zeros((S, m + d, m + d))
+        inverse[:, :m, :m] = W
+        inverse[:, m:, :m] = -L_n_inverse @ np.swapaxes(self.B[:, j], 1, 2) @ W
+        inverse[:, m:, m:] = L_n_inverse
+        return SetFactor(
+            np.concatenate([parent.rows, self.new_rows[j]]), inverse,
+            np.concatenate([parent.whitened, self.y_new[:, j]], axis=1), self.d2_of[:, j],
+            self.log_det_of[:, j],
+        )  # fmt: skip
 
 
 def drift_directions(
@@ -261,10 +372,12 @@ class _Search:
         self.best_score = 0.0 if required is None else -math.inf
 
     def run(self) -> tuple[tuple[int, ...], float]:
-        self._visit(0, [], set(), 0.0)
+        self._visit(0, [], set(), 0.0, self.pair_set.empty_factor())
         return self.best, self.best_score
 
-    def _visit(self, depth: int, chosen: list[int], used: set[int], score: float) -> None:
+    def _visit(
+        self, depth: int, chosen: list[int], used: set[int], score: float, factor: SetFactor
+    ) -> None:
         self.nodes += 1
         if self.nodes > self.max_nodes or (self.budget is not None and not self.budget.spend()):
             self.exhausted = True
@@ -274,17 +387,21 @@ class _Search:
         if depth == len(self.options):
             self.best, self.best_score = tuple(chosen), score
             return
-        # This source's pairs scored together (one stack of linear algebra), then searched.
-        trials = [[*chosen, p] for p in self.options[depth] if not {*self.pair_set.pairs[p]} & used]
-        if trials:
-            log_liks, d2s = self.pair_set.log_likelihoods(trials)
-        for k, trial in enumerate(trials):
+        # This source's pairs scored together, each from the factor of the set so far.
+        new = [p for p in self.options[depth] if not {*self.pair_set.pairs[p]} & used]
+        if new:
+            children = self.pair_set.extensions(factor, new)
+            log_liks, d2s = self.pair_set.mixed(children.log_lik, children.d2)
+        for k, p in enumerate(new):
+            trial = [*chosen, p]
             if d2s[k] > self.gates[len(trial)]:
                 continue
             trial_score = float(log_liks[k]) + float(np.sum(self.pair_set.log_prior[trial]))
-            self._visit(depth + 1, trial, used | {*self.pair_set.pairs[trial[-1]]}, trial_score)
+            self._visit(
+                depth + 1, trial, used | {*self.pair_set.pairs[p]}, trial_score, children.child(k)
+            )
         if not (self.required and depth == 0):
-            self._visit(depth + 1, chosen, used, score)
+            self._visit(depth + 1, chosen, used, score, factor)
 
 
 def best_pairs(
@@ -305,9 +422,49 @@ def best_pairs(
 
 def _block_terms(mean: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(log N(mean; 0, block), mean^T block^-1 mean) of each mean (..., d) and block
-    (..., d, d); -inf and inf where a block is not positive definite."""
-    d = mean.shape[-1]
+    (..., d, d); -inf and inf where a block's determinant is not positive. 3 x 3 blocks by
+    their cofactors (`_block_terms_3`): a search's stacks hold thousands, and LAPACK's
+    call a block costs ten times the arithmetic."""
     blocks = 0.5 * (blocks + np.swapaxes(blocks, -1, -2))
+    if mean.shape[-1] != 3:
+        return _block_terms_lapack(mean, blocks)
+    return _block_terms_3(mean, blocks)
+
+
+# A 3 x 3 block whose determinant is below this fraction of its diagonal's product (the
+# determinant of its correlations) is nearly singular: its cofactors lose digits that LU keeps.
+NEARLY_SINGULAR = 1e-6
+
+
+def _block_terms_3(mean: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_block_terms` of symmetric 3 x 3 blocks: block^-1 = adj(block) / det(block), the
+    adjugate's entries the cofactors; nearly singular blocks (`NEARLY_SINGULAR`) by LAPACK."""
+    a00, a01, a02 = blocks[..., 0, 0], blocks[..., 0, 1], blocks[..., 0, 2]
+    a11, a12, a22 = blocks[..., 1, 1], blocks[..., 1, 2], blocks[..., 2, 2]
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    x0, x1, x2 = mean[..., 0], mean[..., 1], mean[..., 2]
+    quadratic = (
+        c00 * x0 * x0
+        + (a00 * a22 - a02 * a02) * x1 * x1
+        + (a00 * a11 - a01 * a01) * x2 * x2
+        + 2.0 * (c01 * x0 * x1 + c02 * x0 * x2 + (a01 * a02 - a00 * a12) * x1 * x2)
+    )
+    easy = det > NEARLY_SINGULAR * np.abs(a00 * a11 * a22)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d2 = np.where(easy, quadratic / det, np.inf)
+        log_lik = np.where(easy, -0.5 * (d2 + np.log(det) + 3 * LOG_2PI), -np.inf)
+    hard = ~easy
+    if np.any(hard):
+        log_lik[hard], d2[hard] = _block_terms_lapack(mean[hard], blocks[hard])
+    return log_lik, d2
+
+
+def _block_terms_lapack(mean: np.ndarray, blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`_block_terms` of symmetric blocks of any size, by LAPACK."""
+    d = mean.shape[-1]
     sign, log_det = np.linalg.slogdet(blocks)
     safe = np.where(sign[..., None, None] > 0, blocks, np.eye(d))
     d2 = np.einsum("...i,...ij,...j->...", mean, np.linalg.inv(safe), mean)
